@@ -1,0 +1,268 @@
+"""Public driver: from a camera-grid volume to per-pixel depth, slopes, motion and
+brightness change."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .filters import FilterPair, get_filter_pair
+from .models import MODELS, Model, get_model
+from .solve import disentangle, null_space
+from .tensor import (camera_time_signals, gaussian_moment_kernels, spatial_signals,
+                     structure_tensor, structure_tensor_reference)
+
+__all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models"]
+
+
+class InputError(ValueError):
+    """Input the estimator cannot work with; the message names the problem."""
+
+
+@dataclass(frozen=True)
+class EstimatorSettings:
+    """Estimator options (all keyword arguments of :func:`estimate`).
+
+    Attributes
+    ----------
+    sigma : float
+        Standard deviation of the Gaussian neighbourhood in x and y, pixels (paper: 16).
+    window : int
+        Taps of that Gaussian (paper: 65).
+    filters : str
+        Derivative / prefilter pair for x and y, and for cameras and time where they
+        have enough samples (see :mod:`estimator.filters`); ``"matched3"`` is used on an
+        axis with fewer samples than the pair needs.
+    temporal_radius : int or None
+        The neighbourhood spans frames ``k_ref - R .. k_ref + R`` with uniform weights.
+        Default: as many as the temporal filter allows, at most 2.
+    ref_frame : int or None
+        Reference frame ``k_ref``; default the centre frame ``(T - 1) // 2``.
+    method : {"grouped", "reference"}
+        Structure-tensor implementation (same result; "reference" is the straightforward
+        entry-by-entry one).
+    slant_correction : bool
+        Remove the slant-motion coupling from ``U_Z`` (see :mod:`estimator.solve`).
+    band_rows : int or None
+        Output rows processed at a time (bounds memory); default from a 256 MB budget.
+    """
+
+    sigma: float = 16.0
+    window: int = 65
+    filters: str = "matched5"
+    temporal_radius: int | None = None
+    ref_frame: int | None = None
+    method: str = "grouped"
+    slant_correction: bool = True
+    band_rows: int | None = None
+
+
+@dataclass
+class Estimate:
+    """Result of :func:`estimate`.
+
+    Attributes
+    ----------
+    maps : dict of str to ndarray, each shape (H, W)
+        ``Z, Zx, Zy, Ux, Uy, Uz`` (world units, per frame), the model's brightness
+        parameters (``a1, a2`` for hf; also ``a1x, a1y, a2x, a2y`` for full) and
+        ``model_error``.  NaN on border pixels and where the estimate is degenerate.
+    model : str
+    interior : ndarray of bool, shape (H, W)
+        Pixels free of border effects (the window and filters fit inside the image).
+    settings : dict
+        The settings used, including the filters chosen per axis.
+    """
+
+    maps: dict[str, np.ndarray]
+    model: str
+    interior: np.ndarray
+    settings: dict = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.maps[name]
+
+
+def _check_volume(volume) -> np.ndarray:
+    if not isinstance(volume, np.ndarray):
+        raise InputError(f"volume must be a numpy array, got {type(volume).__name__}")
+    if volume.ndim != 5:
+        raise InputError(
+            f"volume must have shape (T, Sy, Sx, H, W) (5 axes); got shape {volume.shape}")
+    if volume.dtype not in (np.float32, np.float64):
+        raise InputError(
+            f"volume must be float32 or float64, got {volume.dtype}; convert integer "
+            "images with volume.astype(np.float64) (intensities must be linear)")
+    bad = ~np.isfinite(volume)
+    if bad.any():
+        first = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise InputError(f"volume has {int(bad.sum())} non-finite values (NaN or inf); "
+                         f"first at index (t, sy, sx, y, x) = {first}")
+    return volume
+
+
+def _axis_pair(name: str, samples: int, axis: str) -> FilterPair:
+    pair = get_filter_pair(name)
+    if samples >= pair.taps:
+        return pair
+    small = get_filter_pair("matched3")
+    if samples >= small.taps:
+        return small
+    raise InputError(f"too few {axis}: {samples}; the derivative filters need at least 3")
+
+
+def _prepare(volume, focal_length, camera_spacing, principal_point, s: EstimatorSettings,
+             models: tuple[str, ...]):
+    volume = _check_volume(volume)
+    T, Sy, Sx, H, W = volume.shape
+    for m in models:
+        if m not in MODELS:
+            raise InputError(f"unknown model {m!r}; expected one of {MODELS}")
+    if Sx % 2 == 0 or Sy % 2 == 0:
+        raise InputError(f"camera grid {Sy}x{Sx} (Sy x Sx) has an even size: the "
+                         "reference camera must be the centre of an odd grid")
+    if Sx < 3:
+        raise InputError(f"too few cameras along x: Sx = {Sx}; need at least 3 "
+                         "(a 1-D grid is horizontal: Sy = 1, Sx >= 3)")
+    f = float(focal_length)
+    if not np.isfinite(f) or f <= 0:
+        raise InputError(f"focal_length must be a positive number of pixels, got {focal_length}")
+    sp = np.asarray(camera_spacing, dtype=float).ravel()
+    if sp.size != 2 or not np.all(np.isfinite(sp)) or sp[0] <= 0 or (Sy > 1 and sp[1] <= 0):
+        raise InputError(f"camera_spacing must be [ds_x, ds_y] > 0, got {camera_spacing}")
+    if principal_point is None:
+        cx, cy = (W - 1) / 2.0, (H - 1) / 2.0
+    else:
+        cx, cy = (float(v) for v in np.asarray(principal_point, dtype=float).ravel())
+    if not (s.sigma > 0 and np.isfinite(s.sigma)):
+        raise InputError(f"sigma must be positive, got {s.sigma}")
+    if int(s.window) != s.window or s.window < 3 or s.window % 2 == 0:
+        raise InputError(f"window must be an odd number of taps >= 3, got {s.window}")
+    if s.method not in ("grouped", "reference"):
+        raise InputError(f"method must be 'grouped' or 'reference', got {s.method!r}")
+    spatial = get_filter_pair(s.filters)
+    cam_x = _axis_pair(s.filters, Sx, "cameras along x")
+    cam_y = _axis_pair(s.filters, Sy, "cameras along y") if Sy > 1 else None
+    k_ref = (T - 1) // 2 if s.ref_frame is None else int(s.ref_frame)
+    if not 0 <= k_ref < T:
+        raise InputError(f"ref_frame {k_ref} outside the {T} frames")
+    reach = min(k_ref, T - 1 - k_ref)
+    needs_t = any(m != "bcc" for m in models)   # I t rows need t to vary over Omega
+    time = None
+    for cand in (get_filter_pair(s.filters), get_filter_pair("matched3")):
+        room = reach - cand.radius
+        if room >= (1 if needs_t else 0):
+            time = cand
+            break
+    if time is None:
+        need = "at least 5 frames (3 in the temporal window)" if needs_t else "at least 3 frames"
+        raise InputError(f"too few frames around the reference frame: T = {T}, k_ref = "
+                         f"{k_ref}; models {models} need {need}")
+    R_t = min(2, reach - time.radius) if s.temporal_radius is None else int(s.temporal_radius)
+    if R_t < 0 or R_t > reach - time.radius or (needs_t and R_t < 1):
+        raise InputError(f"temporal_radius {R_t} does not fit: frames {k_ref} +- {R_t} need "
+                         f"{time.radius} more frames either side, T = {T}")
+    R = s.window // 2
+    halo = R + spatial.radius
+    if H <= 2 * halo or W <= 2 * halo:
+        raise InputError(f"image {H}x{W} too small for a {s.window}-tap window and "
+                         f"{spatial.taps}-tap filters: need more than {2 * halo} pixels "
+                         "per side")
+    grid_dims = 2 if Sy > 1 else 1
+    return dict(volume=volume, f=f, spacing=(sp[0], sp[1] if Sy > 1 else 0.0), cx=cx, cy=cy,
+                spatial=spatial, cam_x=cam_x, cam_y=cam_y, time=time, k_ref=k_ref, R_t=R_t,
+                halo=halo, grid_dims=grid_dims)
+
+
+def estimate(volume: np.ndarray, focal_length: float, camera_spacing, *, model: str = "full",
+             principal_point=None, **settings) -> Estimate:
+    """Estimate depth, slopes, 3-D motion and brightness change at the reference camera.
+
+    Parameters
+    ----------
+    volume : ndarray, shape (T, Sy, Sx, H, W), float32 or float64
+        ``V[t, sy, sx, y, x]``: frames, camera rows (growing with camera Y), camera
+        columns (growing with camera X), image rows (down), image columns (right).
+        Intensities linear in radiance.  ``Sy = 1`` is a horizontal 1-D grid.
+    focal_length : float
+        Focal length in pixels.
+    camera_spacing : (float, float)
+        ``(ds_x, ds_y)`` in world units (``ds_y`` ignored for a 1-D grid).
+    model : {"bcc", "hf", "full"}
+        Brightness constancy, Haussecker-Fleet (spatially constant change), or the
+        paper's full model (spatially varying change).
+    principal_point : (float, float), optional
+        ``(cx, cy)`` in pixels; default the image centre.
+    **settings
+        See :class:`EstimatorSettings`.
+
+    Returns
+    -------
+    Estimate
+        Maps of shape (H, W) in world units per frame; NaN where invalid.
+
+    Raises
+    ------
+    InputError
+        Wrong shape or dtype, NaN/inf, even or too small camera grids, too few frames,
+        an image smaller than the window, or bad settings.
+    """
+    return estimate_models(volume, focal_length, camera_spacing, models=(model,),
+                           principal_point=principal_point, **settings)[model]
+
+
+def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
+                    models=MODELS, principal_point=None, **settings) -> dict[str, Estimate]:
+    """Run several models on one volume, sharing the structure tensor.
+
+    The tensor of the largest model contains the smaller ones as sub-blocks, so it is
+    computed once.  Parameters as :func:`estimate`; returns ``{model: Estimate}``.
+    """
+    s = EstimatorSettings(**settings)
+    models = tuple(models)
+    c = _prepare(volume, focal_length, camera_spacing, principal_point, s, models)
+    vol = c["volume"]
+    T, Sy, Sx, H, W = vol.shape
+    mdl = {m: get_model(m, c["grid_dims"]) for m in models}
+    union = get_model("full" if "full" in models else ("hf" if "hf" in models else "bcc"),
+                      c["grid_dims"])
+    sub = {m: np.array([union.index(r) for r in mdl[m].rows]) for m in models}
+    frames = np.arange(c["k_ref"] - c["R_t"], c["k_ref"] + c["R_t"] + 1)
+    tvals = frames - c["k_ref"]
+    ct = camera_time_signals(vol, frames, c["cam_x"], c["cam_y"], c["time"])
+    kernels = gaussian_moment_kernels(s.sigma, s.window)
+    halo = c["halo"]
+    n = union.n
+    band = s.band_rows or max(8, int(256e6 // (W * n * n * 8 * 3)))
+    tensor = structure_tensor if s.method == "grouped" else structure_tensor_reference
+
+    interior = np.zeros((H, W), dtype=bool)
+    interior[halo:H - halo, halo:W - halo] = True
+    out = {m: {name: np.full((H, W), np.nan) for name in mdl[m].outputs + ("model_error",)}
+           for m in models}
+    cols = np.arange(halo, W - halo)
+    for r0 in range(halo, H - halo, band):
+        r1 = min(r0 + band, H - halo)
+        rows_in = slice(r0 - halo, r1 + halo)
+        sig = spatial_signals({k: a[:, rows_in] for k, a in ct.items()}, c["spatial"])
+        J = tensor(sig, tvals, union.rows, kernels, s.window // 2 + 0)
+        # J covers rows r0 - spatial.radius .. r1 + spatial.radius; keep the band
+        rs = c["spatial"].radius
+        J = J[rs:J.shape[0] - rs, cols]
+        yy, xx = np.meshgrid(np.arange(r0, r1), cols, indexing="ij")
+        x0 = (xx - c["cx"]).ravel().astype(float)
+        y0 = (yy - c["cy"]).ravel().astype(float)
+        Jf = J.reshape(-1, n, n)
+        for m in models:
+            Jm = Jf[:, sub[m][:, None], sub[m][None, :]]
+            P, g, err, valid = null_space(Jm, mdl[m])
+            res = disentangle(P, g, mdl[m], x0, y0, c["f"], c["spacing"],
+                              slant_correction=s.slant_correction)
+            res["model_error"] = np.where(valid, err, np.nan)
+            for name, val in res.items():
+                out[m][name][r0:r1, halo:W - halo] = val.reshape(r1 - r0, cols.size)
+    used = dict(s.__dict__, filters_xy=c["spatial"].name, filters_sx=c["cam_x"].name,
+                filters_sy=c["cam_y"].name if c["cam_y"] else None, filters_t=c["time"].name,
+                temporal_radius=c["R_t"], ref_frame=c["k_ref"])
+    return {m: Estimate(out[m], m, interior, dict(used, model=m)) for m in models}

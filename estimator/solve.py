@@ -1,0 +1,164 @@
+"""Null space of J and the disentangling of the parameters (Sec. 3, steps 3-5).
+
+Error estimates used to combine the twice-estimated ``v, z_x, z_y, u_z``
+------------------------------------------------------------------------------
+``P = E M^-1`` (E: the null-space eigenvectors, M: their rows ``I_sx, I_sy, I_t``) holds
+one parameter vector per column with the fixed components ``(ds_x, ds_y, dt)`` equal to a
+unit vector.  To first order (Nestares et al. [14]), a perturbation ``δJ`` of the tensor
+moves column ``p_c`` by ``-(I - P S) J^+ δJ p_c`` (S selects the fixed rows), and with
+data noise of variance ``σ²`` per component ``cov(δJ p_c) ≈ σ² |p_c|² J``, so
+
+    var(P[r, c]) ∝ |p_c|² [(I - P S) J^+ (I - P S)^T]_rr = |p_c|² (J_qq^-1)_rr,
+
+the last form (``J_qq``: J without the fixed rows and columns) being the covariance of the
+same parameters estimated by least squares with the fixed rows held.  ``σ²`` is common
+to all columns and cancels in the weights.  The two estimates of a quantity are averaged
+with inverse-variance weights; their correlation is ignored (the paper rotates
+coordinates to make it vanish; we do not).
+
+Beyond the paper: motion of a slanted surface
+---------------------------------------------
+The paper drops the products of ``z_x Δx`` with the motion terms.  To first order they are
+not small: the flow of a slanted, laterally moving patch has ``∂(dx/dt)/∂Δx = u_z +
+z_x p1 / v`` with ``p1 = u_x + x0 u_z`` (and likewise ``z_y p2 / v`` in y), so reading
+``u_z`` straight from rows 3 and 6 is biased by ``U_X Z_X / U_Z`` (15 % for the slanted
+test plane).  The TLS leaves the dt-column's rows 3-6 free, so the term is present in the
+estimate and can be removed after the fact: ``u_z = P[3, t] - z_x P[1, t] / v`` (and
+``P[6, t] - z_y P[2, t] / v``).  ``slant_correction=False`` gives the paper's reading.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .models import Model
+
+__all__ = ["null_space", "disentangle"]
+
+# A pixel is degenerate when J has more (near-)zero eigenvalues than the model's null
+# space: the (k+1)-th smallest eigenvalue below this fraction of the largest.  1e-11 is
+# ~1e5 float64 roundoffs of the largest eigenvalue, far below any textured data we
+# measured (>= 1e-7 on the sinusoids).
+RANK_TOL = 1e-11
+# M (3x3 of orthonormal vectors' rows, singular values <= 1) must be invertible for the
+# ds/dt directions to be in the null space at all.
+M_TOL = 1e-6
+
+
+def null_space(J: np.ndarray, model: Model):
+    """Eigen-decompose J and form the parameter vectors of the solution space.
+
+    Parameters
+    ----------
+    J : ndarray, shape (N, n, n), float64
+    model : Model
+
+    Returns
+    -------
+    P : ndarray, shape (N, n, k)
+        Parameter vectors; column c has the fixed rows equal to the c-th unit vector
+        (k = 3 for a 2-D grid: ds_x, ds_y, dt; k = 2 for a 1-D grid: ds_x, dt).
+    g : ndarray, shape (N, n)
+        ``(J_qq^-1)_rr`` for every row (0 on the fixed rows), the row factor of the
+        error estimate.
+    model_error : ndarray, shape (N,)
+        Largest of the k smallest eigenvalues (Fig. 1's colour code).
+    valid : ndarray of bool, shape (N,)
+    """
+    k = model.null_dim
+    fixed = [model.index(r) for r in model.fixed_rows]
+    lam, V = np.linalg.eigh(J)
+    E, Er, lam_r = V[..., :k], V[..., k:], lam[..., k:]
+    scale = lam[..., -1]
+    valid = np.isfinite(scale) & (scale > 0) & (lam[..., k] > RANK_TOL * scale)
+    M = E[:, fixed, :]                                   # (N, k, k)
+    smin = np.linalg.svd(M, compute_uv=False)[..., -1]
+    valid &= smin > M_TOL
+    M[~valid] = np.eye(k)
+    # P = E M^-1, i.e. P^T = solve(M^T, E^T)
+    P = np.linalg.solve(np.swapaxes(M, -1, -2), np.swapaxes(E, -1, -2)).swapaxes(-1, -2)
+    G = Er - P @ Er[:, fixed, :]                         # (I - P S) E_rest
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g = np.einsum("nri,ni->nr", G * G, 1.0 / np.where(valid[:, None], lam_r, 1.0))
+    P[~valid] = np.nan
+    g[~valid] = np.nan
+    return P, g, lam[..., k - 1], valid
+
+
+def _combine(x1, w1, x2, w2):
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (w1 * x1 + w2 * x2) / (w1 + w2)
+
+
+def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: np.ndarray,
+                focal_length: float, spacing: tuple[float, float],
+                slant_correction: bool = True) -> dict[str, np.ndarray]:
+    """Parameters in world units from the parameter vectors (Sec. 3, steps 4-5).
+
+    Parameters
+    ----------
+    P : ndarray, shape (N, n, k)
+        From :func:`null_space`; derivatives are per pixel, per camera index and per frame.
+    g : ndarray, shape (N, n)
+    model : Model
+    x0, y0 : ndarray, shape (N,)
+        Pixel coordinates relative to the principal point.
+    focal_length : float
+        Pixels.
+    spacing : (float, float)
+        Camera spacing ``(ds_x, ds_y)`` in world units.
+    slant_correction : bool
+        Remove the slant-motion coupling from ``u_z`` (see module docstring).
+
+    Returns
+    -------
+    dict of str to ndarray, each shape (N,)
+        ``Z, Zx, Zy, Ux, Uy, Uz`` and the model's brightness parameters, per frame.
+    """
+    i = model.index
+    f = focal_length
+    dsx, dsy = spacing
+    norm2 = np.einsum("nrc,nrc->nc", P, P)             # |p_c|^2
+    cx, ct = P[..., 0], P[..., -1]
+    # From the ds columns: disparity v and projected slopes, per world unit of ds.
+    v = cx[:, i("Ix")] / dsx
+    zx = cx[:, i("IxDx")] / dsx
+    zy = cx[:, i("IxDy")] / dsx
+    if model.grid_dims == 2:
+        cy = P[..., 1]
+        wx = dsx ** 2 / norm2[:, 0]
+        wy = dsy ** 2 / norm2[:, 1]
+        v = _combine(v, wx / g[:, i("Ix")], cy[:, i("Iy")] / dsy, wy / g[:, i("Iy")])
+        zx = _combine(zx, wx / g[:, i("IxDx")], cy[:, i("IyDx")] / dsy, wy / g[:, i("IyDx")])
+        zy = _combine(zy, wx / g[:, i("IxDy")], cy[:, i("IyDy")] / dsy, wy / g[:, i("IyDy")])
+    # From the dt column: divergence u_z twice (rows 3 and 6), then the translation.
+    p1, p2 = ct[:, i("Ix")], ct[:, i("Iy")]
+    uz_x, uz_y = ct[:, i("IxDx")], ct[:, i("IyDy")]
+    if slant_correction:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uz_x = uz_x - zx * p1 / v
+            uz_y = uz_y - zy * p2 / v
+    uz = _combine(uz_x, 1.0 / g[:, i("IxDx")], uz_y, 1.0 / g[:, i("IyDy")])
+    ux = p1 - x0 * uz
+    uy = p2 - y0 * uz
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Z = -f / v
+        out = {
+            "Z": Z,
+            "Zx": zx * Z / (1.0 + zx * Z * x0 / f),
+            "Zy": zy * Z / (1.0 + zy * Z * y0 / f),
+            "Ux": Z * ux / f,
+            "Uy": Z * uy / f,
+            "Uz": -Z * uz,
+        }
+        if "I" in model.rows:
+            out["a1"] = -ct[:, i("I")]
+            out["a2"] = -ct[:, i("tI")] / 2.0
+        if "IDx" in model.rows:
+            jx = f * (1.0 - out["Zx"] * x0 / f) / Z
+            jy = f * (1.0 - out["Zy"] * y0 / f) / Z
+            out["a1x"] = -ct[:, i("IDx")] * jx
+            out["a1y"] = -ct[:, i("IDy")] * jy
+            out["a2x"] = -ct[:, i("tIDx")] / 2.0 * jx
+            out["a2y"] = -ct[:, i("tIDy")] / 2.0 * jy
+    return out

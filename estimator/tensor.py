@@ -1,0 +1,209 @@
+"""Derivative signals and the structure tensor J (Sec. 3, steps 1-2).
+
+``J = sum_Omega w d d^T`` over a neighbourhood that is Gaussian in x and y (the paper's
+65-tap, sigma = 16 window) and uniform over the frames of the temporal window, at the
+reference camera.  Rows with ``Δx, Δy`` are not formed per neighbourhood: the sum
+``sum_Δ w(Δ) Δ^k g(c + Δ)`` is a correlation of ``g`` with the kernel ``w(Δ) Δ^k``.
+
+Two implementations give the same J:
+
+* :func:`structure_tensor` groups the 120 entries by the product of base signals they
+  share, sums frames before the (linear) spatial smoothing, and reuses the x-pass across
+  the y-moments.
+* :func:`structure_tensor_reference` is the straightforward one: every entry, every
+  frame, its own separable correlation.  It is kept for checking and as the baseline of
+  ``bench/``.
+"""
+
+from __future__ import annotations
+
+from itertools import combinations_with_replacement
+
+import numpy as np
+from scipy.ndimage import correlate1d
+
+from .filters import FilterPair
+from .models import ROWS
+
+__all__ = ["camera_time_signals", "spatial_signals", "gaussian_moment_kernels",
+           "structure_tensor", "structure_tensor_reference"]
+
+
+def _axis_filter(a: np.ndarray, kernel: np.ndarray, axis: int, centre: int) -> np.ndarray:
+    """Apply ``kernel`` along ``axis`` at index ``centre`` only (axis removed)."""
+    r = kernel.size // 2
+    sl = np.take(a, np.arange(centre - r, centre + r + 1), axis=axis)
+    return np.tensordot(kernel, np.moveaxis(sl, axis, 0), axes=(0, 0))
+
+
+def camera_time_signals(volume: np.ndarray, frames: np.ndarray, cam_x: FilterPair,
+                        cam_y: FilterPair | None, time: FilterPair) -> dict[str, np.ndarray]:
+    """Filter the camera and time axes at the reference camera.
+
+    Parameters
+    ----------
+    volume : ndarray, shape (T, Sy, Sx, H, W)
+    frames : ndarray of int, shape (F,)
+        Frames of the temporal window; each needs ``time.radius`` frames either side.
+    cam_x, cam_y : FilterPair
+        Filters across the camera axes, applied at the centre camera.  ``cam_y`` is None
+        for a 1-D grid (``Sy = 1``).
+    time : FilterPair
+
+    Returns
+    -------
+    dict of str to ndarray, each shape (F, H, W)
+        ``"p"``: prefiltered along sx, sy, t; ``"sx"``, ``"sy"``, ``"t"``: derivative
+        along that axis, prefiltered along the others (``"sy"`` absent for 1-D grids).
+    """
+    T, Sy, Sx, H, W = volume.shape
+    jc, ic = (Sx - 1) // 2, (Sy - 1) // 2
+    # Reduce the camera axes first: they are the smallest, and everything after works
+    # on (T, H, W) stacks.
+    vp = _axis_filter(volume, cam_x.prefilter, 2, jc)      # (T, Sy, H, W)
+    vd = _axis_filter(volume, cam_x.derivative, 2, jc)
+    if cam_y is None:
+        spp, sdp, spd = vp[:, 0], vd[:, 0], None
+    else:
+        spp = _axis_filter(vp, cam_y.prefilter, 1, ic)     # (T, H, W)
+        sdp = _axis_filter(vd, cam_y.prefilter, 1, ic)
+        spd = _axis_filter(vp, cam_y.derivative, 1, ic)
+
+    def along_t(a: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+        return np.stack([_axis_filter(a, kernel, 0, int(k)) for k in frames])
+
+    out = {"p": along_t(spp, time.prefilter), "t": along_t(spp, time.derivative),
+           "sx": along_t(sdp, time.prefilter)}
+    if spd is not None:
+        out["sy"] = along_t(spd, time.prefilter)
+    return out
+
+
+def spatial_signals(ct: dict[str, np.ndarray], spatial: FilterPair) -> dict[str, np.ndarray]:
+    """Filter x and y, giving the base signals of the data rows.
+
+    Parameters
+    ----------
+    ct : dict of str to ndarray, each shape (F, h, W)
+        Output of :func:`camera_time_signals` (possibly a band of rows).
+    spatial : FilterPair
+
+    Returns
+    -------
+    dict of str to ndarray, each shape (F, h, W), float64
+        ``"x", "y", "sx", "sy", "t", "I"`` (``"sy"`` only if present in ``ct``).  Rows
+        within ``spatial.radius`` of the band's edges are not valid.
+    """
+    p, d = spatial.prefilter, spatial.derivative
+
+    def sep(a, kx, ky):
+        a = correlate1d(np.asarray(a, dtype=np.float64), kx, axis=-1, mode="nearest")
+        return correlate1d(a, ky, axis=-2, mode="nearest")
+
+    base = ct["p"]
+    out = {"x": sep(base, d, p), "y": sep(base, p, d), "I": sep(base, p, p),
+           "sx": sep(ct["sx"], p, p), "t": sep(ct["t"], p, p)}
+    if "sy" in ct:
+        out["sy"] = sep(ct["sy"], p, p)
+    return out
+
+
+def gaussian_moment_kernels(sigma: float, window: int) -> np.ndarray:
+    """Kernels ``w(Δ) Δ^k`` for ``k = 0, 1, 2``.
+
+    Parameters
+    ----------
+    sigma : float
+        Standard deviation of the Gaussian in pixels.
+    window : int
+        Odd number of taps.
+
+    Returns
+    -------
+    ndarray, shape (3, window)
+        Row ``k`` is ``w(Δ) Δ^k`` with ``Δ = -R..R`` and ``sum w = 1``.
+    """
+    R = window // 2
+    delta = np.arange(-R, R + 1, dtype=float)
+    w = np.exp(-0.5 * (delta / sigma) ** 2)
+    w /= w.sum()
+    return np.stack([w, w * delta, w * delta ** 2])
+
+
+def _entry_keys(rows: tuple[str, ...]):
+    """For each upper-triangle entry: (a, b, signal pair, t-power, x-power, y-power)."""
+    keys = []
+    for a, b in combinations_with_replacement(range(len(rows)), 2):
+        sa, ta, ma = ROWS[rows[a]]
+        sb, tb, mb = ROWS[rows[b]]
+        mono = ma + mb
+        keys.append((a, b, tuple(sorted((sa, sb))), ta + tb, mono.count("x"), mono.count("y")))
+    return keys
+
+
+def _smooth(img: np.ndarray, kx: np.ndarray, ky: np.ndarray, halo: int) -> np.ndarray:
+    out = correlate1d(img, kx, axis=-1, mode="constant")
+    out = correlate1d(out, ky, axis=-2, mode="constant")
+    return out[halo:img.shape[0] - halo] if halo else out
+
+
+def structure_tensor(signals: dict[str, np.ndarray], tvals: np.ndarray, rows: tuple[str, ...],
+                     kernels: np.ndarray, halo: int) -> np.ndarray:
+    """Structure tensor for every pixel of a band, grouped computation.
+
+    Parameters
+    ----------
+    signals : dict of str to ndarray, each shape (F, h, W)
+        Base signals from :func:`spatial_signals`.
+    tvals : ndarray, shape (F,)
+        Frame offsets ``t`` of the frames (relative to the reference frame).
+    rows : tuple of str
+        Data rows (see :mod:`estimator.models`).
+    kernels : ndarray, shape (3, window)
+        From :func:`gaussian_moment_kernels`.
+    halo : int
+        Rows dropped at the top and bottom of the band (the window's reach).
+
+    Returns
+    -------
+    ndarray, shape (h - 2 halo, W, n, n), float64
+    """
+    n = len(rows)
+    F, h, W = next(iter(signals.values())).shape
+    wt = np.full(F, 1.0 / F)
+    J = np.empty((h - 2 * halo, W, n, n))
+    groups: dict[tuple, list] = {}
+    for key in _entry_keys(rows):
+        groups.setdefault((key[2], key[3]), []).append(key)
+    for (pair, tpow), entries in groups.items():
+        coef = wt * tvals.astype(float) ** tpow
+        prod = np.einsum("f,fhw,fhw->hw", coef, signals[pair[0]], signals[pair[1]])
+        xpass: dict[int, np.ndarray] = {}
+        done: dict[tuple[int, int], np.ndarray] = {}
+        for a, b, _, _, px, py in entries:
+            if (px, py) not in done:
+                if px not in xpass:
+                    xpass[px] = correlate1d(prod, kernels[px], axis=-1, mode="constant")
+                sm = correlate1d(xpass[px], kernels[py], axis=-2, mode="constant")
+                done[(px, py)] = sm[halo:h - halo] if halo else sm
+            J[..., a, b] = done[(px, py)]
+            J[..., b, a] = done[(px, py)]
+    return J
+
+
+def structure_tensor_reference(signals: dict[str, np.ndarray], tvals: np.ndarray,
+                               rows: tuple[str, ...], kernels: np.ndarray,
+                               halo: int) -> np.ndarray:
+    """Straightforward structure tensor: each entry and frame smoothed on its own.
+
+    Same parameters and result as :func:`structure_tensor`.
+    """
+    n = len(rows)
+    F, h, W = next(iter(signals.values())).shape
+    J = np.zeros((h - 2 * halo, W, n, n))
+    for a, b, pair, tpow, px, py in _entry_keys(rows):
+        for f in range(F):
+            prod = signals[pair[0]][f] * signals[pair[1]][f]
+            J[..., a, b] += (float(tvals[f]) ** tpow / F) * _smooth(prod, kernels[px], kernels[py], halo)
+        J[..., b, a] = J[..., a, b]
+    return J

@@ -1,0 +1,289 @@
+"""The sinusoid experiment of Sec. 4.1, rendered by exact ray-plane intersection.
+
+A textured plane ``Z = Z0 + U_Z t + Z_X Xm + Z_Y Ym`` translates with ``(U_X, U_Y, U_Z)``;
+``(Xm, Ym)`` are the plane's own (material) coordinates, equal to world ``(X, Y)`` at
+``t = 0`` with the origin on the reference camera's optical axis.  Texture and brightness
+change are functions of the material coordinates (Eq. 8, 11)::
+
+    I = (offset + amplitude/2 * (sin(2 pi Xm / Lx) + sin(2 pi Ym / Ly)))
+        * exp((a1 + a1x Xm + a1y Ym) t + (a2 + a2x Xm + a2y Ym) t^2)
+
+Each pixel of each camera is rendered by intersecting its ray with the plane at that
+time; nothing of the estimator's linearisation (Eq. 15-17) is used, so the estimator's
+approximations are tested, not reproduced.
+
+Conventions (``shared/design/model.md``): volume ``V[t, sy, sx, y, x]``, right-handed
+camera frame with X right, Y down, Z forward; pixel coordinates relative to the principal
+point (the image centre); cameras at ``s = ((j - (Sx-1)/2) ds_x, (i - (Sy-1)/2) ds_y, 0)``;
+time ``t = (k - k_ref) * frame_interval`` with ``k_ref`` the centre frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+
+import numpy as np
+
+__all__ = ["SinusoidParams", "SyntheticVolume", "make_sinusoid", "BRIGHTNESS_PARAMS"]
+
+BRIGHTNESS_PARAMS = ("a1", "a1x", "a1y", "a2", "a2x", "a2y")
+
+# exp() of float64 overflows at 709.8; refuse well before so that a sweep value that would
+# produce inf/0 intensities is an error, not silent garbage.
+_MAX_EXPONENT = 80.0
+
+
+@dataclass(frozen=True)
+class SinusoidParams:
+    """Parameters of a sinusoid volume.
+
+    Units: lengths in world units (think mm), time in frames unless ``frame_interval``
+    says otherwise, ``f`` in pixels.  The defaults follow the paper where it speaks
+    (``Z0 = 100``, ``U_Z = 0.1``, wavelengths 8 and 80 px, amplitude 1) and are
+    justified in ``docs/reproduction.md`` where it is silent.
+
+    Attributes
+    ----------
+    Z0 : float
+        Depth of the plane on the reference optical axis at ``t = 0``.
+    f : float
+        Focal length in pixels.  The paper's ``f = 10`` is read as 10 mm with a 10 um
+        pixel pitch, i.e. 1000 px (a literal 10 px lens would see a 160 deg field).
+    U_X, U_Y, U_Z : float
+        Velocity, world units per unit time.
+    Z_X, Z_Y : float
+        Surface slopes (normal ``(-Z_X, -Z_Y, 1)``).
+    a1, a1x, a1y, a2, a2x, a2y : float
+        Brightness change of Eq. 11, per unit time (``a2``: per unit time squared);
+        ``a1x`` etc. additionally per world unit.
+    wavelength_x, wavelength_y : float
+        Texture wavelengths in pixels of the reference camera at depth ``Z0``.
+    amplitude, offset : float
+        Texture amplitude (peak deviation from the mean at ``t = 0``) and mean.
+    noise : float
+        Standard deviation of additive white Gaussian noise.
+    seed : int
+        Seed of the noise generator.
+    height, width : int
+        Image size in pixels.
+    grid : tuple of int
+        Camera grid ``(Sy, Sx)``; ``Sy = 1`` is a 1-D (horizontal) grid.
+    spacing : tuple of float
+        Camera spacing ``(ds_x, ds_y)`` in world units.
+    frames : int
+        Number of frames ``T``.
+    frame_interval : float
+        Time between frames.
+    """
+
+    Z0: float = 100.0
+    f: float = 1000.0
+    U_X: float = 0.0
+    U_Y: float = 0.0
+    U_Z: float = 0.1
+    Z_X: float = 0.0
+    Z_Y: float = 0.0
+    a1: float = 0.0
+    a1x: float = 0.0
+    a1y: float = 0.0
+    a2: float = 0.0
+    a2x: float = 0.0
+    a2y: float = 0.0
+    wavelength_x: float = 8.0
+    wavelength_y: float = 80.0
+    amplitude: float = 1.0
+    offset: float = 1.0
+    noise: float = 0.0
+    seed: int = 0
+    height: int = 192
+    width: int = 192
+    grid: tuple[int, int] = (5, 5)
+    spacing: tuple[float, float] = (0.05, 0.05)
+    frames: int = 9
+    frame_interval: float = 1.0
+
+    def __post_init__(self) -> None:
+        for fl in fields(self):
+            val = getattr(self, fl.name)
+            vals = val if isinstance(val, tuple) else (val,)
+            for v in vals:
+                if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+                    raise TypeError(f"{fl.name} must be numeric, got {val!r}")
+                if not np.isfinite(v):
+                    raise ValueError(f"{fl.name} must be finite, got {val!r}")
+        if len(self.grid) != 2 or len(self.spacing) != 2:
+            raise ValueError("grid is (Sy, Sx) and spacing is (ds_x, ds_y)")
+        positive = {"Z0": self.Z0, "f": self.f, "wavelength_x": self.wavelength_x,
+                    "wavelength_y": self.wavelength_y, "frame_interval": self.frame_interval}
+        for name, v in positive.items():
+            if v <= 0:
+                raise ValueError(f"{name} must be positive, got {v}")
+        for name in ("noise", "amplitude"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be non-negative")
+        for name in ("height", "width", "frames", "seed"):
+            v = getattr(self, name)
+            if int(v) != v or v < 0:
+                raise ValueError(f"{name} must be a non-negative integer, got {v}")
+        if self.height < 1 or self.width < 1 or self.frames < 1:
+            raise ValueError("height, width and frames must be at least 1")
+        sy, sx = self.grid
+        if int(sy) != sy or int(sx) != sx or sy < 1 or sx < 1:
+            raise ValueError(f"grid must be two positive integers, got {self.grid}")
+        if self.spacing[0] <= 0 or (sy > 1 and self.spacing[1] <= 0):
+            raise ValueError(f"camera spacing must be positive, got {self.spacing}")
+
+    @property
+    def ref_frame(self) -> int:
+        """Index ``k_ref`` of the reference (centre) frame."""
+        return (self.frames - 1) // 2
+
+    def replace(self, **changes) -> "SinusoidParams":
+        """Return a copy with ``changes`` applied (validated)."""
+        unknown = set(changes) - {fl.name for fl in fields(self)}
+        if unknown:
+            raise ValueError(f"unknown sinusoid parameter(s): {sorted(unknown)}")
+        d = asdict(self)
+        d.update(changes)
+        for key in ("grid", "spacing"):
+            d[key] = tuple(d[key])
+        return SinusoidParams(**d)
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class SyntheticVolume:
+    """A rendered volume with its camera geometry and ground truth.
+
+    Attributes
+    ----------
+    volume : ndarray, shape (T, Sy, Sx, H, W)
+    focal_length : float
+        Pixels.
+    camera_spacing : tuple of float
+        ``(ds_x, ds_y)``, world units.
+    principal_point : tuple of float
+        ``(cx, cy)`` in pixels (column, row).
+    truth : dict of str to ndarray, each shape (H, W)
+        Ground truth at the reference camera and frame, per frame: ``Z, Zx, Zy, Ux, Uy,
+        Uz``, local ``a1, a2`` and the constants ``a1x, a1y, a2x, a2y``.
+    params : SinusoidParams or None
+    """
+
+    volume: np.ndarray
+    focal_length: float
+    camera_spacing: tuple[float, float]
+    principal_point: tuple[float, float]
+    truth: dict[str, np.ndarray] = field(default_factory=dict)
+    params: SinusoidParams | None = None
+
+
+def _pixel_grid(p: SinusoidParams) -> tuple[np.ndarray, np.ndarray]:
+    x = np.arange(p.width, dtype=float) - (p.width - 1) / 2.0
+    y = np.arange(p.height, dtype=float) - (p.height - 1) / 2.0
+    return np.meshgrid(x, y)
+
+
+def _intersect(p: SinusoidParams, x, y, sx: float, sy: float, t: float):
+    """Exact ray-plane intersection; returns depth and material coordinates."""
+    denom = 1.0 - (p.Z_X * x + p.Z_Y * y) / p.f
+    num = p.Z0 + p.U_Z * t + p.Z_X * (sx - p.U_X * t) + p.Z_Y * (sy - p.U_Y * t)
+    Z = num / denom
+    if np.any(denom <= 0) or np.any(Z <= 0):
+        raise ValueError(
+            "the plane is seen edge-on or behind a camera for some pixel "
+            f"(Z_X={p.Z_X}, Z_Y={p.Z_Y}, f={p.f}, image {p.height}x{p.width}); "
+            "reduce the slopes or the image size")
+    Xm = sx + x * Z / p.f - p.U_X * t
+    Ym = sy + y * Z / p.f - p.U_Y * t
+    return Z, Xm, Ym
+
+
+def make_sinusoid(params: SinusoidParams | None = None, *, dtype=np.float64,
+                  **overrides) -> SyntheticVolume:
+    """Render a sinusoid volume with ground truth.
+
+    Parameters
+    ----------
+    params : SinusoidParams, optional
+        Defaults to ``SinusoidParams()``; ``overrides`` replace single fields.
+    dtype : {numpy.float64, numpy.float32}
+        Type of the returned volume (rendering is always done in float64).
+
+    Returns
+    -------
+    SyntheticVolume
+        ``volume`` has shape ``(T, Sy, Sx, H, W)``.
+
+    Raises
+    ------
+    ValueError
+        If the plane is not visible in every pixel, or the brightness exponent
+        ``|h|`` would exceed 80 anywhere (``exp`` would lose all precision).
+    """
+    p = (params or SinusoidParams()).replace(**overrides) if overrides else (params or SinusoidParams())
+    dtype = np.dtype(dtype)
+    if dtype not in (np.float32, np.float64):
+        raise ValueError(f"dtype must be float32 or float64, got {dtype}")
+    x, y = _pixel_grid(p)
+    Sy, Sx = p.grid
+    dsx, dsy = p.spacing
+    kx = 2 * np.pi / (p.wavelength_x * p.Z0 / p.f)
+    ky = 2 * np.pi / (p.wavelength_y * p.Z0 / p.f)
+    vol = np.empty((p.frames, Sy, Sx, p.height, p.width), dtype=dtype)
+    rng = np.random.default_rng(p.seed)
+    for k in range(p.frames):
+        t = (k - p.ref_frame) * p.frame_interval
+        for i in range(Sy):
+            sy = (i - (Sy - 1) / 2.0) * dsy
+            for j in range(Sx):
+                sx = (j - (Sx - 1) / 2.0) * dsx
+                _, Xm, Ym = _intersect(p, x, y, sx, sy, t)
+                h = ((p.a1 + p.a1x * Xm + p.a1y * Ym) * t
+                     + (p.a2 + p.a2x * Xm + p.a2y * Ym) * t * t)
+                hmax = float(np.max(np.abs(h)))
+                if hmax > _MAX_EXPONENT:
+                    raise ValueError(
+                        f"brightness exponent |h| reaches {hmax:.3g} (> {_MAX_EXPONENT}) at "
+                        f"frame {k}: a1={p.a1}, a1x={p.a1x}, a1y={p.a1y}, a2={p.a2}, "
+                        f"a2x={p.a2x}, a2y={p.a2y} overflow exp(); use smaller values, "
+                        "fewer frames or a smaller image")
+                tex = p.offset + 0.5 * p.amplitude * (np.sin(kx * Xm) + np.sin(ky * Ym))
+                vol[k, i, j] = tex * np.exp(h)
+    if p.noise > 0:
+        # One draw over the whole volume in C order: reproducible from the seed alone.
+        vol += (p.noise * rng.standard_normal(vol.shape)).astype(dtype)
+    return SyntheticVolume(volume=vol, focal_length=p.f, camera_spacing=(dsx, dsy),
+                           principal_point=((p.width - 1) / 2.0, (p.height - 1) / 2.0),
+                           truth=ground_truth(p), params=p)
+
+
+def ground_truth(p: SinusoidParams) -> dict[str, np.ndarray]:
+    """Ground-truth maps at the reference camera and frame, per frame.
+
+    Parameters
+    ----------
+    p : SinusoidParams
+
+    Returns
+    -------
+    dict of str to ndarray, each shape (H, W)
+        ``Z, Zx, Zy, Ux, Uy, Uz, a1, a2, a1x, a1y, a2x, a2y``.  Motion and brightness
+        parameters are converted to per-frame units with ``frame_interval``; ``a1`` and
+        ``a2`` are the local values ``a1 + a1x X + a1y Y`` at the surface point seen.
+    """
+    x, y = _pixel_grid(p)
+    Z, Xm, Ym = _intersect(p, x, y, 0.0, 0.0, 0.0)
+    dt = p.frame_interval
+    const = lambda v: np.full(Z.shape, float(v))  # noqa: E731
+    return {
+        "Z": Z,
+        "Zx": const(p.Z_X), "Zy": const(p.Z_Y),
+        "Ux": const(p.U_X * dt), "Uy": const(p.U_Y * dt), "Uz": const(p.U_Z * dt),
+        "a1": (p.a1 + p.a1x * Xm + p.a1y * Ym) * dt,
+        "a2": (p.a2 + p.a2x * Xm + p.a2y * Ym) * dt * dt,
+        "a1x": const(p.a1x * dt), "a1y": const(p.a1y * dt),
+        "a2x": const(p.a2x * dt * dt), "a2y": const(p.a2y * dt * dt),
+    }

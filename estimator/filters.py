@@ -93,9 +93,10 @@ def _design_matched5() -> FilterPair:
 def _fs5() -> FilterPair:
     # Farid & Simoncelli (2004), 5-tap; derivative rescaled to unit first moment so that
     # brightness parameters (I_t against I) come out in the right units.
-    p1, p2, d1, d2 = 0.249153, 0.037659, 0.276691, 0.109604
-    s = 2 * d1 + 4 * d2
-    return _from_half("fs5", 0.426375, [p1, p2], [d1 / s, d2 / s])
+    # (The published prefilter sums to 0.999999; it is renormalised too.)
+    p0, p1, p2, d1, d2 = 0.426375, 0.249153, 0.037659, 0.276691, 0.109604
+    s, q = 2 * d1 + 4 * d2, p0 + 2 * p1 + 2 * p2
+    return _from_half("fs5", p0 / q, [p1 / q, p2 / q], [d1 / s, d2 / s])
 
 
 @lru_cache(maxsize=None)

@@ -20,9 +20,11 @@ time ``t = (k - k_ref) * frame_interval`` with ``k_ref`` the centre frame.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
+
+from gridflow.volume import GridVolume
 
 __all__ = ["SinusoidParams", "SyntheticVolume", "make_sinusoid", "BRIGHTNESS_PARAMS"]
 
@@ -153,31 +155,15 @@ class SinusoidParams:
         return asdict(self)
 
 
-@dataclass
-class SyntheticVolume:
-    """A rendered volume with its camera geometry and ground truth.
+class SyntheticVolume(GridVolume):
+    """A :class:`gridflow.volume.GridVolume` made by :func:`make_sinusoid`;
+    ``meta["params"]`` holds the :class:`SinusoidParams` as a dict and ``params`` the
+    object itself."""
 
-    Attributes
-    ----------
-    volume : ndarray, shape (T, Sy, Sx, H, W)
-    focal_length : float
-        Pixels.
-    camera_spacing : tuple of float
-        ``(ds_x, ds_y)``, world units.
-    principal_point : tuple of float
-        ``(cx, cy)`` in pixels (column, row).
-    truth : dict of str to ndarray, each shape (H, W)
-        Ground truth at the reference camera and frame, per frame: ``Z, Zx, Zy, Ux, Uy,
-        Uz``, local ``a1, a2`` and the constants ``a1x, a1y, a2x, a2y``.
-    params : SinusoidParams or None
-    """
-
-    volume: np.ndarray
-    focal_length: float
-    camera_spacing: tuple[float, float]
-    principal_point: tuple[float, float]
-    truth: dict[str, np.ndarray] = field(default_factory=dict)
-    params: SinusoidParams | None = None
+    @property
+    def params(self) -> SinusoidParams:
+        return SinusoidParams(**{k: tuple(v) if isinstance(v, list) else v
+                                 for k, v in self.meta["params"].items()})
 
 
 def _pixel_grid(p: SinusoidParams) -> tuple[np.ndarray, np.ndarray]:
@@ -257,7 +243,7 @@ def make_sinusoid(params: SinusoidParams | None = None, *, dtype=np.float64,
         vol += (p.noise * rng.standard_normal(vol.shape)).astype(dtype)
     return SyntheticVolume(volume=vol, focal_length=p.f, camera_spacing=(dsx, dsy),
                            principal_point=((p.width - 1) / 2.0, (p.height - 1) / 2.0),
-                           truth=ground_truth(p), params=p)
+                           truth=ground_truth(p), meta={"generator": "sinusoid", "params": p.as_dict()})
 
 
 def ground_truth(p: SinusoidParams) -> dict[str, np.ndarray]:

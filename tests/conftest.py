@@ -1,0 +1,41 @@
+"""Shared fixtures: volumes and estimates are cached per session, since every check on
+the default sinusoid reads the same estimates."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+import pytest
+
+from estimator import estimate_models
+from generators import make_sinusoid
+from gridflow.metrics import evaluate
+
+
+def _key(kw: dict) -> tuple:
+    return tuple(sorted((k, tuple(v) if isinstance(v, (list, tuple)) else v)
+                        for k, v in kw.items()))
+
+
+@lru_cache(maxsize=32)
+def _run(key: tuple):
+    kw = dict(key)
+    est_kw = {k[4:]: v for k, v in kw.items() if k.startswith("est_")}
+    gen_kw = {k: v for k, v in kw.items() if not k.startswith("est_")}
+    sv = make_sinusoid(**gen_kw)
+    res = estimate_models(sv.volume, sv.focal_length, sv.camera_spacing, **est_kw)
+    scores = {m: {r["quantity"]: r for r in evaluate(e.maps, sv.truth, e.interior)}
+              for m, e in res.items()}
+    return sv, res, scores
+
+
+@pytest.fixture(scope="session")
+def run():
+    """``run(**params)`` -> (volume, {model: Estimate}, {model: {quantity: Eq.22 row}})."""
+    return lambda **kw: _run(_key(kw))
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(12345)

@@ -1,0 +1,178 @@
+"""Invariants, precision, equivalence of implementations, and bad input."""
+
+import numpy as np
+import pytest
+
+from estimator import InputError, estimate, estimate_models
+from generators import make_sinusoid
+
+SMALL = dict(height=80, width=80, frames=7)
+
+
+# The magnitude each quantity has in these experiments (Z0 = 100, slopes O(1), U_Z = 0.1,
+# swept brightness values).  Differences are judged against these, not against a map's own
+# maximum, because several truths are 0 and their estimates are pure roundoff.
+SCALE = {"Z": 100.0, "Zx": 1.0, "Zy": 1.0, "Ux": 0.1, "Uy": 0.1, "Uz": 0.1, "a1": 1.0,
+         "a2": 0.1, "a1x": 0.01, "a1y": 0.01, "a2x": 1e-3, "a2y": 1e-3,
+         # an eigenvalue is exact only to eps * ||J||, and ||J|| ~ sigma^2 max(I)^2 ~ 1e3
+         "model_error": 1e3}
+# eigenvalues: a few hundred eps of ||J||
+EIG_REL = 1e-12
+
+
+def _close(a, b, rel, name):
+    """|a - b| <= rel * SCALE[name] wherever defined, and NaN in the same places."""
+    scale = SCALE[name]
+    rel = min(rel, EIG_REL) if name == "model_error" else rel
+    np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+    assert np.nanmax(np.abs(a - b)) <= rel * scale, name
+
+
+def test_scaling_the_volume_changes_nothing(run):
+    # J scales by c^2, its eigenvectors not at all; what remains is float64 roundoff
+    # amplified by the eigen-gap: measured <= 2e-11 of SCALE; 1e-8 leaves room for other
+    # BLAS/LAPACK builds.
+    sv, res, _ = run(a1=0.2, a1x=0.005)
+    scaled = estimate_models(sv.volume * 7.3, sv.focal_length, sv.camera_spacing)
+    for m in res:
+        for name in res[m].maps:
+            if name == "model_error":
+                # an eigenvalue of J: scales with c^2, it is the one output that must change
+                _close(res[m][name], scaled[m][name] / 7.3 ** 2, 1e-8, name)
+            else:
+                _close(res[m][name], scaled[m][name], 1e-8, name)
+
+
+def test_models_agree_on_brightness_constant_data(run):
+    # Each model is within Q_rel(Z) <= 1e-4 and Q_rel(U_Z) <= 1e-3 of the truth (measured),
+    # so two of them must agree within the sum: 2e-4 and 2e-3.
+    sv, res, _ = run()
+    m = res["full"].interior
+    for other in ("bcc", "hf"):
+        for q, tol in (("Z", 2e-4), ("Uz", 2e-3)):
+            diff = np.mean(np.abs(res[other][q][m] - res["full"][q][m]) / sv.truth[q][m])
+            assert diff <= tol
+
+
+def test_grouped_and_reference_tensors_agree():
+    sv = make_sinusoid(a1=0.3, a2x=0.004, Z_X=0.2, **SMALL)
+    a = estimate(sv.volume, sv.focal_length, sv.camera_spacing, method="grouped")
+    b = estimate(sv.volume, sv.focal_length, sv.camera_spacing, method="reference")
+    for name in a.maps:
+        # same sums in another order: roundoff, measured <= 2e-10 of SCALE
+        _close(a[name], b[name], 1e-8, name)
+
+
+def test_band_processing_is_invisible():
+    sv = make_sinusoid(**SMALL)
+    a = estimate(sv.volume, sv.focal_length, sv.camera_spacing, band_rows=3)
+    b = estimate(sv.volume, sv.focal_length, sv.camera_spacing, band_rows=1000)
+    for name in a.maps:
+        _close(a[name], b[name], 1e-12, name)
+
+
+def test_float32_matches_float64(run):
+    """float32 storage rounds each sample by at most 2^-24 relative: a white noise of
+    std <= 2^-24 * max|I| / sqrt(3) = 6.9e-8 (max|I| = 2).  Estimation errors scale
+    linearly with noise std; sigma_n = 0.025 gives Q_rel(Z) = 3.3e-4 and Q_rel(U_Z) =
+    4.5e-3 (measured, seed 0).  So float32 may move the estimates by about
+    6.9e-8 / 0.025 = 2.8e-6 of those, i.e. 9e-10 (Z) and 1.3e-8 (U_Z); we allow 10x.
+    """
+    sv64, res64, _ = run()
+    sv32 = make_sinusoid(dtype=np.float32)
+    res32 = estimate_models(sv32.volume, sv32.focal_length, sv32.camera_spacing)
+    m = res64["full"].interior
+    ratio = 2.0 ** -24 * 2.0 / np.sqrt(3) / 0.025
+    for q, q_noise in (("Z", 3.3e-4), ("Uz", 4.5e-3)):
+        for model in res64:
+            d = np.mean(np.abs(res32[model][q][m] - res64[model][q][m]) / sv64.truth[q][m])
+            assert d <= 10 * ratio * q_noise
+
+
+def test_border_is_nan_interior_is_not(run):
+    _, res, _ = run()
+    e = res["full"]
+    halo = 32 + 2
+    assert e.interior.sum() == (192 - 2 * halo) ** 2
+    for name, arr in e.maps.items():
+        assert np.all(np.isnan(arr[~e.interior])), name
+        assert np.all(np.isfinite(arr[e.interior])), name
+
+
+# --- bad input -------------------------------------------------------------------------
+
+GOOD = make_sinusoid(**SMALL)
+
+
+def _est(vol, **kw):
+    return estimate(vol, GOOD.focal_length, GOOD.camera_spacing, **kw)
+
+
+@pytest.mark.parametrize("vol, match", [
+    (GOOD.volume[0], r"shape \(T, Sy, Sx, H, W\)"),
+    (GOOD.volume.astype(np.uint16), "float32 or float64, got uint16"),
+    (GOOD.volume.astype(np.int64), "float32 or float64"),
+    (GOOD.volume[:, :, :1], "too few cameras along x"),
+    (GOOD.volume[:, :4, :4], "even size"),
+    (GOOD.volume[:, :, :2], "even size"),
+    (GOOD.volume[:3], "too few frames"),
+    (GOOD.volume[..., :40, :40], "too small"),
+    ([[1.0]], "numpy array"),
+])
+def test_bad_volume(vol, match):
+    with pytest.raises(InputError, match=match):
+        _est(vol)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_non_finite_values(bad):
+    vol = GOOD.volume.copy()
+    vol[3, 2, 1, 40, 41] = bad
+    with pytest.raises(InputError, match=r"non-finite .* \(3, 2, 1, 40, 41\)"):
+        _est(vol)
+
+
+def test_bcc_runs_on_three_frames_full_does_not():
+    vol = GOOD.volume[2:5]
+    e = _est(vol, model="bcc")
+    assert np.isfinite(e["Z"][e.interior]).all()
+    with pytest.raises(InputError, match="too few frames"):
+        _est(vol, model="full")
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(model="affine"), "unknown model"),
+    (dict(sigma=-1.0), "sigma"),
+    (dict(window=64), "odd"),
+    (dict(filters="sobel"), "unknown filter"),
+    (dict(temporal_radius=5), "temporal_radius"),
+    (dict(method="fast"), "method"),
+])
+def test_bad_settings(kw, match):
+    with pytest.raises((InputError, ValueError), match=match):
+        _est(GOOD.volume, **kw)
+
+
+def test_bad_geometry():
+    with pytest.raises(InputError, match="focal_length"):
+        estimate(GOOD.volume, -5.0, (0.05, 0.05))
+    with pytest.raises(InputError, match="camera_spacing"):
+        estimate(GOOD.volume, 1000.0, (0.05,))
+
+
+def test_textureless_volume_gives_nan_not_garbage():
+    vol = np.full_like(GOOD.volume, 0.7)
+    for model in ("bcc", "hf", "full"):
+        e = _est(vol, model=model)
+        for name, arr in e.maps.items():
+            assert np.all(np.isnan(arr)), (model, name)
+
+
+def test_partly_textureless_volume():
+    # left half flat: the pixels whose whole window is flat are NaN, the others valid
+    vol = GOOD.volume.copy()
+    vol[..., :40] = 1.0
+    e = _est(vol)
+    Z = e["Z"]
+    assert np.all(np.isnan(Z[:, :40 - 34]))          # window (radius 32 + 2) sees only flat
+    assert np.all(np.isfinite(Z[e.interior][:, None].reshape(-1)[-10:]))

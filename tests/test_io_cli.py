@@ -1,0 +1,110 @@
+"""Interchange files and the command line, end to end."""
+
+
+import numpy as np
+import pytest
+
+from generators import make_sinusoid
+from gridflow.cli import main
+from gridflow.io import load_estimate, load_volume, save_volume
+from gridflow.volume import GridVolume
+
+SMALL = ["--height", "80", "--width", "80", "--frames", "7"]
+
+
+def test_volume_roundtrip(tmp_path):
+    sv = make_sinusoid(height=16, width=20, grid=(3, 3), frames=5, a1=0.2)
+    save_volume(tmp_path / "v.npz", sv)
+    back = load_volume(tmp_path / "v.npz")
+    np.testing.assert_array_equal(back.volume, sv.volume)
+    assert back.focal_length == sv.focal_length
+    assert back.camera_spacing == sv.camera_spacing
+    assert set(back.truth) == set(sv.truth)
+    assert back.meta["params"]["a1"] == 0.2
+
+
+def test_file_written_without_gridflow_is_read(tmp_path):
+    # the documented interchange format, written with plain numpy; principal point omitted
+    vol = np.random.default_rng(0).random((5, 3, 3, 10, 12))
+    np.savez(tmp_path / "mine.npz", volume=vol, focal_length=800.0, camera_spacing=[0.1, 0.2],
+             truth_Z=np.full((10, 12), 50.0))
+    d = load_volume(tmp_path / "mine.npz")
+    assert d.principal_point == (5.5, 4.5)
+    assert d.camera_spacing == (0.1, 0.2)
+    assert d.truth["Z"].shape == (10, 12)
+
+
+@pytest.mark.parametrize("arrays, match", [
+    (dict(volume=np.zeros((3, 3, 10, 10)), focal_length=1.0, camera_spacing=[1, 1]), "shape"),
+    (dict(volume=np.zeros((3, 1, 3, 10, 10)), camera_spacing=[1, 1]), "focal_length"),
+    (dict(volume=np.zeros((3, 1, 3, 10, 10)), focal_length=1.0, camera_spacing=[1, 1, 1]),
+     "camera_spacing"),
+    (dict(volume=np.zeros((3, 1, 3, 10, 10)), focal_length=1.0, camera_spacing=[1, 1],
+          truth_Z=np.zeros((5, 5))), "truth_Z"),
+])
+def test_bad_volume_files(tmp_path, arrays, match):
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(ValueError, match=match):
+        load_volume(tmp_path / "bad.npz")
+
+
+def test_unreadable_and_missing_files(tmp_path):
+    (tmp_path / "junk.npz").write_bytes(b"this is not a zip file")
+    with pytest.raises(ValueError, match="not a readable .npz"):
+        load_volume(tmp_path / "junk.npz")
+    with pytest.raises(FileNotFoundError, match="no such file"):
+        load_volume(tmp_path / "absent.npz")
+
+
+def test_failed_write_keeps_existing_file(tmp_path, monkeypatch):
+    target = tmp_path / "v.npz"
+    target.write_bytes(b"precious")
+
+    def half_write(fh, **arrays):
+        fh.write(b"PK partial")
+        raise OSError("disk full")
+
+    monkeypatch.setattr("gridflow.io.np.savez", half_write)
+    with pytest.raises(OSError, match="disk full"):
+        save_volume(target, GridVolume(np.zeros((1, 1, 1, 2, 2)), 1.0, (1.0, 1.0), (0.5, 0.5)))
+    assert target.read_bytes() == b"precious"
+    assert [p.name for p in tmp_path.iterdir()] == ["v.npz"]   # no temp file left
+
+
+def test_cli_generate_estimate_evaluate(tmp_path, capsys):
+    vol, est = tmp_path / "vol.npz", tmp_path / "est.npz"
+    assert main(["generate", *SMALL, "--a1", "0.3", "-o", str(vol)]) == 0
+    assert main(["estimate", str(vol), "--model", "full", "-o", str(est)]) == 0
+    maps, interior, meta = load_estimate(est)
+    assert meta["model"] == "full" and meta["settings"]["filters_xy"] == "matched5"
+    expected = {"Z", "Zx", "Zy", "Ux", "Uy", "Uz", "a1", "a2", "a1x", "a1y", "a2x", "a2y",
+                "model_error"}
+    assert set(maps) == expected
+    assert all(m.shape == (80, 80) and m.dtype == np.float64 for m in maps.values())
+    capsys.readouterr()
+    assert main(["evaluate", str(est), str(vol)]) == 0
+    out = capsys.readouterr().out
+    line = next(l for l in out.splitlines() if l.startswith("a1 "))
+    assert float(line.split()[1]) < 0.005          # Q_rel(a1) at a1 = 0.3
+
+
+def test_cli_bcc_writes_only_its_maps(tmp_path):
+    vol, est = tmp_path / "vol.npz", tmp_path / "est.npz"
+    main(["generate", *SMALL, "-o", str(vol)])
+    assert main(["estimate", str(vol), "--model", "bcc", "--sigma", "8", "--window", "33",
+                 "-o", str(est)]) == 0
+    maps, _, meta = load_estimate(est)
+    assert set(maps) == {"Z", "Zx", "Zy", "Ux", "Uy", "Uz", "model_error"}
+    assert meta["settings"]["sigma"] == 8.0
+
+
+def test_cli_errors_are_clear(tmp_path, capsys):
+    assert main(["estimate", str(tmp_path / "none.npz"), "-o", str(tmp_path / "e.npz")]) == 2
+    assert "no such file" in capsys.readouterr().err
+    vol = tmp_path / "vol.npz"
+    main(["generate", "--height", "40", "--width", "40", "--frames", "7", "-o", str(vol)])
+    assert main(["estimate", str(vol), "-o", str(tmp_path / "e.npz")]) == 2
+    assert "too small" in capsys.readouterr().err
+    assert not (tmp_path / "e.npz").exists()
+    assert main(["generate", "--a1", "500", "-o", str(tmp_path / "x.npz")]) == 2
+    assert "exponent" in capsys.readouterr().err

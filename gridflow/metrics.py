@@ -4,7 +4,9 @@
 the pixels free of border effects.  Pixels whose estimate is NaN (degenerate) inside that
 region are not averaged but counted (``n_invalid``), so a breakdown is visible instead of
 silently dropped.  Following the paper, the headline value ``q`` of a quantity is
-``q_rel`` when its reference is non-zero everywhere and ``q_abs`` otherwise.
+``q_rel`` when its reference is bounded away from zero (non-zero and of one sign on every
+pixel) and ``q_abs`` otherwise: a local ``a1 = a1x X`` that crosses zero inside the image
+would make a relative error meaningless.
 """
 
 from __future__ import annotations
@@ -88,7 +90,8 @@ def evaluate(maps: dict[str, np.ndarray], truth: dict[str, np.ndarray], mask: np
         n_inv = int(np.count_nonzero(~np.isfinite(np.asarray(est)[mask])))
         rel = METRICS["q_rel"].fn(est, ref, mask)
         ab = METRICS["q_abs"].fn(est, ref, mask)
-        use_rel = bool(np.all(np.asarray(ref)[mask] != 0))
+        r = np.asarray(ref)[mask]
+        use_rel = bool(np.all(r > 0) or np.all(r < 0))
         rows.append({"quantity": name, "q_rel": rel, "q_abs": ab,
                      "q": rel if use_rel else ab, "measure": "rel" if use_rel else "abs",
                      "n_pixels": int(mask.sum()), "n_invalid": n_inv})

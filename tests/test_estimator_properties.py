@@ -28,13 +28,20 @@ def _close(a, b, rel, name):
     assert np.nanmax(np.abs(a - b)) <= rel * scale, name
 
 
-def test_scaling_the_volume_changes_nothing(run):
+@pytest.mark.parametrize("models, kw", [
+    (("bcc",), {}),
+    # BCC is not tested under brightness change: there it has broken down (the eigen-gap
+    # closes) and roundoff is amplified without bound, which is a breakdown, not a
+    # scale dependence.
+    (("hf", "full"), dict(a1=0.2, a1x=0.005)),
+])
+def test_scaling_the_volume_changes_nothing(run, models, kw):
     # J scales by c^2, its eigenvectors not at all; what remains is float64 roundoff
     # amplified by the eigen-gap: measured <= 2e-11 of SCALE; 1e-8 leaves room for other
     # BLAS/LAPACK builds.
-    sv, res, _ = run(a1=0.2, a1x=0.005)
-    scaled = estimate_models(sv.volume * 7.3, sv.focal_length, sv.camera_spacing)
-    for m in res:
+    sv, res, _ = run(**kw)
+    scaled = estimate_models(sv.volume * 7.3, sv.focal_length, sv.camera_spacing, models=models)
+    for m in models:
         for name in res[m].maps:
             if name == "model_error":
                 # an eigenvalue of J: scales with c^2, it is the one output that must change
@@ -73,17 +80,17 @@ def test_band_processing_is_invisible():
 
 def test_float32_matches_float64(run):
     """float32 storage rounds each sample by at most 2^-24 relative: a white noise of
-    std <= 2^-24 * max|I| / sqrt(3) = 6.9e-8 (max|I| = 2).  Estimation errors scale
-    linearly with noise std; sigma_n = 0.025 gives Q_rel(Z) = 3.3e-4 and Q_rel(U_Z) =
-    4.5e-3 (measured, seed 0).  So float32 may move the estimates by about
-    6.9e-8 / 0.025 = 2.8e-6 of those, i.e. 9e-10 (Z) and 1.3e-8 (U_Z); we allow 10x.
+    std <= 2^-24 * max|I| / sqrt(3) = 3.4e-8 (max|I| = 1).  Estimation errors scale
+    linearly with noise std; sigma_n = 0.025 gives Q_rel(Z) = 3.2e-4 and Q_rel(U_Z) =
+    4.4e-3 (measured, seed 0).  So float32 may move the estimates by about
+    3.4e-8 / 0.025 = 1.4e-6 of those, i.e. 4.5e-10 (Z) and 6e-9 (U_Z); we allow 10x.
     """
     sv64, res64, _ = run()
     sv32 = make_sinusoid(dtype=np.float32)
     res32 = estimate_models(sv32.volume, sv32.focal_length, sv32.camera_spacing)
     m = res64["full"].interior
-    ratio = 2.0 ** -24 * 2.0 / np.sqrt(3) / 0.025
-    for q, q_noise in (("Z", 3.3e-4), ("Uz", 4.5e-3)):
+    ratio = 2.0 ** -24 * 1.0 / np.sqrt(3) / 0.025
+    for q, q_noise in (("Z", 3.2e-4), ("Uz", 4.4e-3)):
         for model in res64:
             d = np.mean(np.abs(res32[model][q][m] - res64[model][q][m]) / sv64.truth[q][m])
             assert d <= 10 * ratio * q_noise

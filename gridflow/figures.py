@@ -1,0 +1,140 @@
+"""The paper's figures, drawn from results (edge of the system: plotting only).
+
+Fig. 2: first and last central image of a sinusoid sequence (``a2 = -0.2, a2x = -0.002``).
+Fig. 3: errors of ``a1`` and ``a2`` against each of ``a1, a1x, a2, a2x`` (HF and full).
+Fig. 4: ``Q_rel(U_Z)`` against the same, three models, noise-free and sigma_n = 0.025.
+Fig. 1 (the cube) is drawn by :mod:`gridflow.cube`.
+
+Error measure per panel (Eq. 22): relative when the quantity is the swept parameter
+itself, absolute for cross-talk (the swept parameter leaves the quantity's reference at 0
+or makes it cross 0).  The x axes show ``|value|`` on a log scale; the value 0 of each
+sweep is drawn as a dotted horizontal line at its error.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+__all__ = ["fig2", "fig3", "fig4", "save", "STYLE", "MODEL_STYLE", "PARAM_LABEL"]
+
+STYLE = {"font.size": 8, "axes.titlesize": 8, "axes.labelsize": 8, "legend.fontsize": 7,
+         "xtick.labelsize": 7, "ytick.labelsize": 7, "figure.dpi": 150, "savefig.dpi": 150,
+         "axes.grid": True, "grid.alpha": 0.3}
+MODEL_STYLE = {"bcc": dict(color="#d62728", marker="s", label="BCC"),
+               "hf": dict(color="#1f77b4", marker="o", label="HF"),
+               "full": dict(color="#2ca02c", marker="^", label="full")}
+PARAM_LABEL = {"a1": r"$a_1$", "a1x": r"$a_{1,x}$", "a2": r"$a_2$", "a2x": r"$a_{2,x}$",
+               "Uz": r"$U_Z$"}
+PARAMS = ("a1", "a1x", "a2", "a2x")
+
+
+def save(fig, out_dir, name: str) -> list[Path]:
+    """Write ``name``.png and ``name``.pdf into ``out_dir``; returns the paths."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for ext in ("png", "pdf"):
+        p = out_dir / f"{name}.{ext}"
+        # metadata without dates keeps the files identical from run to run
+        meta = {"CreationDate": None} if ext == "pdf" else {"Software": None}
+        fig.savefig(p, bbox_inches="tight", metadata=meta)
+        paths.append(p)
+    plt.close(fig)
+    return paths
+
+
+def _measure(quantity: str, param: str) -> str:
+    return "q_rel" if quantity == param else "q_abs"
+
+
+def _ylabel(quantity: str, measure: str) -> str:
+    q = PARAM_LABEL.get(quantity, quantity)
+    return (r"$Q_{rel}$" if measure == "q_rel" else r"$Q_{abs}$") + f" of {q}"
+
+
+def _panel(ax, df: pd.DataFrame, quantity: str, param: str, models, noise: float) -> None:
+    measure = _measure(quantity, param)
+    for model in models:
+        d = df[(df.param == param) & (df.quantity == quantity) & (df.model == model)
+               & (df.noise == noise)]
+        if d.empty:
+            continue
+        d = d.groupby("value", as_index=False)[measure].mean()
+        nz = d[d.value != 0]
+        st = MODEL_STYLE[model]
+        ax.plot(nz.value.abs(), nz[measure], ms=3, lw=1, **st)
+        zero = d[d.value == 0][measure]
+        if len(zero) and np.isfinite(zero.iloc[0]) and zero.iloc[0] > 0:
+            ax.axhline(zero.iloc[0], color=st["color"], ls=":", lw=0.8)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    sign = "-" if (df[df.param == param].value < 0).any() else ""
+    ax.set_xlabel(f"{sign}{PARAM_LABEL[param]}" if sign else PARAM_LABEL[param])
+    ax.set_ylabel(_ylabel(quantity, measure))
+
+
+def fig3(df: pd.DataFrame):
+    """Errors of a1 (top) and a2 (bottom) against a1, a1x, a2, a2x; HF and full, noise-free."""
+    with plt.rc_context(STYLE):
+        fig, axes = plt.subplots(2, 4, figsize=(10, 4.6), constrained_layout=True)
+        for row, q in enumerate(("a1", "a2")):
+            for col, p in enumerate(PARAMS):
+                _panel(axes[row, col], df, q, p, ("hf", "full"), 0.0)
+        axes[0, 0].legend()
+        fig.suptitle("Fig. 3: brightness parameters, noise-free (dotted: value at 0)")
+    return fig
+
+
+def fig4(df: pd.DataFrame, noise: float = 0.025):
+    """Q_rel(U_Z) against a1, a1x, a2, a2x; three models; noise-free and noisy."""
+    with plt.rc_context(STYLE):
+        fig, axes = plt.subplots(2, 4, figsize=(10, 4.6), constrained_layout=True)
+        for row, n in enumerate((0.0, noise)):
+            for col, p in enumerate(PARAMS):
+                ax = axes[row, col]
+                for model in ("bcc", "hf", "full"):
+                    d = df[(df.param == p) & (df.quantity == "Uz") & (df.model == model)
+                           & (df.noise == n)].groupby("value", as_index=False)["q_rel"].mean()
+                    nz = d[d.value != 0]
+                    ax.plot(nz.value.abs(), nz.q_rel, ms=3, lw=1, **MODEL_STYLE[model])
+                    zero = d[d.value == 0].q_rel
+                    if len(zero):
+                        ax.axhline(zero.iloc[0], color=MODEL_STYLE[model]["color"], ls=":", lw=0.8)
+                ax.set_xscale("log")
+                ax.set_yscale("log")
+                sign = "-" if (df[df.param == p].value < 0).any() else ""
+                ax.set_xlabel(f"{sign}{PARAM_LABEL[p]}")
+                ax.set_ylabel(r"$Q_{rel}$ of $U_Z$" + ("" if n == 0 else rf", $\sigma_n$={n}"))
+        axes[0, 0].legend()
+        fig.suptitle(r"Fig. 4: relative error of $U_Z$; top noise-free, bottom "
+                     rf"$\sigma_n = {noise}$ (dotted: value at 0)")
+    return fig
+
+
+def fig2(first: np.ndarray, last: np.ndarray, caption: str):
+    """First and last central image of a sequence, shared grey scale.
+
+    Parameters
+    ----------
+    first, last : ndarray, shape (H, W)
+    caption : str
+    """
+    lo = min(first.min(), last.min())
+    hi = max(first.max(), last.max())
+    with plt.rc_context(STYLE):
+        fig, axes = plt.subplots(1, 2, figsize=(6, 3.2), constrained_layout=True)
+        for ax, img, title in zip(axes, (first, last), ("(a) first frame", "(b) last frame")):
+            ax.imshow(img, cmap="gray", vmin=lo, vmax=hi, interpolation="nearest")
+            ax.set_title(title)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            ax.grid(False)
+        fig.suptitle(caption)
+    return fig

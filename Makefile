@@ -10,10 +10,11 @@ PY     := $(BIN)/python
 STAMP  := $(VENV)/.installed
 
 .DEFAULT_GOAL := help
-.PHONY: help env test figures baseline bench clean distclean
+.PHONY: help env test figures reproduce baseline bench clean distclean
 
 help:
 	@echo "make figures   reproduce the paper's figures and result tables (results/)"
+	@echo "make reproduce regenerate every result from scratch"
 	@echo "make test      run the test suite"
 	@echo "make baseline  regenerate the stored error curves deliberately"
 	@echo "make bench     run the throughput benchmark"
@@ -27,6 +28,40 @@ $(STAMP): pyproject.toml requirements.lock
 	touch $@
 
 env: $(STAMP)
+
+# --- results and figures -----------------------------------------------------------------
+NUMERICS  := $(wildcard estimator/*.py generators/*.py) gridflow/metrics.py gridflow/sweep.py \
+             gridflow/cli.py
+SWEEP_CSV := results/sweep_paper.csv
+FIGDIR    := results/figures
+FIGS      := $(FIGDIR)/fig2.png $(FIGDIR)/fig3.png $(FIGDIR)/fig4.png
+OUTPUTS   := $(FIGS) results/claims.csv
+
+figures: $(STAMP)
+	@t0=$$(date +%s); $(MAKE) --no-print-directory $(OUTPUTS) && \
+	  echo "make figures: up to date after $$(( $$(date +%s) - t0 )) s"
+
+# Everything from scratch: delete the generated results, then rebuild them.
+reproduce: $(STAMP)
+	rm -f $(OUTPUTS) $(SWEEP_CSV)
+	@$(MAKE) --no-print-directory figures
+
+$(SWEEP_CSV): bench/sweeps/paper.toml $(NUMERICS) | $(STAMP)
+	$(BIN)/gridflow sweep $< -o $@
+
+$(FIGDIR)/fig3.png $(FIGDIR)/fig4.png &: $(SWEEP_CSV) gridflow/figures.py gridflow/cli.py | $(STAMP)
+	$(BIN)/gridflow figures --sweep $< --out $(FIGDIR)
+
+$(FIGDIR)/fig2.png: gridflow/figures.py generators/sinusoid.py gridflow/cli.py | $(STAMP)
+	$(BIN)/gridflow figures --fig2 --out $(FIGDIR)
+
+results/claims.csv: $(SWEEP_CSV) gridflow/claims.py gridflow/cli.py | $(STAMP)
+	$(BIN)/gridflow claims $< --write-csv $@ --write-doc docs/reproduction.md
+
+# Regenerate the stored error curves on purpose (the tests compare fresh runs with them).
+baseline: $(STAMP)
+	$(BIN)/gridflow sweep bench/sweeps/paper.toml -o $(SWEEP_CSV)
+	$(BIN)/gridflow claims $(SWEEP_CSV) --write-csv results/claims.csv --write-doc docs/reproduction.md
 
 test: $(STAMP)
 	$(PY) -m pytest

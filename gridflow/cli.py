@@ -117,6 +117,101 @@ def cmd_evaluate(a) -> int:
     return 0
 
 
+def cmd_sweep(a) -> int:
+    from .sweep import SpecError, SweepSpec, run_sweep
+
+    if a.spec:
+        spec = SweepSpec.from_toml(a.spec)
+        raw = None
+    else:
+        raw = {"sweep": {"name": a.name}, "axis": []}
+    if a.param or a.values:
+        if not (a.param and a.values):
+            raise SpecError("--param and --values go together")
+        axes = [{"param": a.param, "values": a.values}]
+        if raw is None:
+            spec.axes = [(a.param, a.values)]
+        else:
+            raw["axis"] = axes
+    if raw is not None:
+        for key in ("models", "noise", "seeds"):
+            if getattr(a, key) is not None:
+                raw["sweep"][key] = getattr(a, key)
+        spec = SweepSpec.from_dict(raw, source="command line")
+    else:
+        for key in ("models", "noise", "seeds"):
+            if getattr(a, key) is not None:
+                setattr(spec, key, getattr(a, key))
+        spec.validate(a.spec)
+    n = len(spec.points())
+    print(f"sweep {spec.name}: {n} points x {len(spec.models)} models -> {a.output}",
+          file=sys.stderr)
+    t0 = time.perf_counter()
+    client = None
+    if a.scheduler or (a.workers and a.dask):
+        from .distributed import make_client
+
+        client = make_client(a.scheduler, a.workers)
+    try:
+        df = run_sweep(spec, a.output, workers=a.workers, progress=not a.no_progress,
+                       executor=client)
+    finally:
+        if client is not None:
+            client.close()
+    print(f"wrote {a.output}: {len(df)} rows in {time.perf_counter() - t0:.1f} s",
+          file=sys.stderr)
+    return 0
+
+
+def cmd_figures(a) -> int:
+    import pandas as pd
+
+    from generators import make_sinusoid
+
+    from . import figures as F
+
+    out = Path(a.out)
+    written = []
+    if a.sweep:
+        df = pd.read_csv(a.sweep)
+        missing = {"param", "value", "model", "quantity", "noise", "q_rel", "q_abs"} - set(df)
+        if missing:
+            raise ValueError(f"{a.sweep}: not a sweep CSV (missing columns {sorted(missing)})")
+        written += F.save(F.fig3(df), out, "fig3")
+        written += F.save(F.fig4(df), out, "fig4")
+    if a.fig2:
+        sv = make_sinusoid(a2=-0.2, a2x=-0.002)
+        c = sv.volume.shape[1] // 2, sv.volume.shape[2] // 2
+        k = sv.params.ref_frame
+        T = sv.volume.shape[0]
+        frames = [sv.volume[i, c[0], c[1]] for i in (0, k, T - 1)]
+        titles = [f"(a) first frame, t = {-k}", "reference frame, t = 0",
+                  f"(b) last frame, t = {T - 1 - k}"]
+        written += F.save(F.fig2(frames, titles, r"Fig. 2: $a_1 = a_{1,x} = 0$, "
+                                 r"$a_2 = -0.2$, $a_{2,x} = -0.002$ (one grey scale)"),
+                          out, "fig2")
+    for p in written:
+        print(f"wrote {p}")
+    return 0
+
+
+def cmd_claims(a) -> int:
+    import pandas as pd
+
+    from .claims import check_claims, render_markdown, write_claims
+
+    df = pd.read_csv(a.csv)
+    table = check_claims(df)
+    print(table.to_string(index=False, columns=["id", "verdict", "numbers"],
+                          max_colwidth=110))
+    if a.write_doc or a.write_csv:
+        write_claims(table, doc=a.write_doc, csv=a.write_csv, source=a.csv)
+        for p in (a.write_doc, a.write_csv):
+            if p:
+                print(f"wrote {p}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="gridflow", description=__doc__)
     sub = ap.add_subparsers(dest="command", required=True)
@@ -137,6 +232,35 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("estimate", help="estimate .npz")
     p.add_argument("volume", help="volume .npz or folder with truth")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("sweep", help="run a parameter sweep, write a tidy CSV")
+    p.add_argument("spec", nargs="?", help="sweep spec (TOML), e.g. bench/sweeps/paper.toml")
+    p.add_argument("-o", "--output", required=True, help="output CSV")
+    p.add_argument("--name", default="sweep", help="sweep name (without a spec)")
+    p.add_argument("--param", help="parameter to sweep (replaces the spec's axes)")
+    p.add_argument("--values", type=float, nargs="+", help="values of --param")
+    p.add_argument("--models", nargs="+", help="models (default: all three)")
+    p.add_argument("--noise", type=float, nargs="+", help="noise levels sigma_n")
+    p.add_argument("--seeds", type=int, nargs="+", help="noise seeds")
+    p.add_argument("--workers", type=int, default=None,
+                   help="processes on this machine (default: all cores)")
+    p.add_argument("--dask", action="store_true",
+                   help="with --workers N: run on a local dask.distributed cluster of N workers")
+    p.add_argument("--scheduler", help="address of a running dask scheduler (tcp://HOST:PORT)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser("figures", help="draw Figs. 2-4 into a folder")
+    p.add_argument("--sweep", help="sweep CSV for Figs. 3 and 4")
+    p.add_argument("--fig2", action="store_true", help="draw Fig. 2")
+    p.add_argument("--out", default="results/figures", help="folder (default results/figures)")
+    p.set_defaults(func=cmd_figures)
+
+    p = sub.add_parser("claims", help="check the paper's observations 1-10 on a sweep CSV")
+    p.add_argument("csv", help="sweep CSV (e.g. results/sweep_paper.csv)")
+    p.add_argument("--write-doc", help="markdown file whose claims section to rewrite")
+    p.add_argument("--write-csv", help="CSV of verdicts to write")
+    p.set_defaults(func=cmd_claims)
     return ap
 
 

@@ -1,6 +1,9 @@
 """The paper's figures, drawn from results (edge of the system: plotting only).
 
-Fig. 2: first and last central image of a sinusoid sequence (``a2 = -0.2, a2x = -0.002``).
+Fig. 2: first, reference and last central image of a sinusoid sequence (``a2 = -0.2,
+a2x = -0.002``).  The brightness model is normalised at the centre frame, so the first and
+last frames are darkened alike (``exp(-0.2 * 4^2) = 0.04``); the reference frame is shown
+between them to make that visible.
 Fig. 3: errors of ``a1`` and ``a2`` against each of ``a1, a1x, a2, a2x`` (HF and full).
 Fig. 4: ``Q_rel(U_Z)`` against the same, three models, noise-free and sigma_n = 0.025.
 Fig. 1 (the cube) is drawn by :mod:`gridflow.cube`.
@@ -118,19 +121,21 @@ def fig4(df: pd.DataFrame, noise: float = 0.025):
     return fig
 
 
-def fig2(first: np.ndarray, last: np.ndarray, caption: str):
-    """First and last central image of a sequence, shared grey scale.
+def fig2(frames: list[np.ndarray], titles: list[str], caption: str):
+    """Central-camera images of a sequence on one shared grey scale.
 
     Parameters
     ----------
-    first, last : ndarray, shape (H, W)
+    frames : list of ndarray, each shape (H, W)
+    titles : list of str
     caption : str
     """
-    lo = min(first.min(), last.min())
-    hi = max(first.max(), last.max())
+    lo = min(f.min() for f in frames)
+    hi = max(f.max() for f in frames)
     with plt.rc_context(STYLE):
-        fig, axes = plt.subplots(1, 2, figsize=(6, 3.2), constrained_layout=True)
-        for ax, img, title in zip(axes, (first, last), ("(a) first frame", "(b) last frame")):
+        fig, axes = plt.subplots(1, len(frames), figsize=(3 * len(frames), 3.3),
+                                 constrained_layout=True)
+        for ax, img, title in zip(axes, frames, titles):
             ax.imshow(img, cmap="gray", vmin=lo, vmax=hi, interpolation="nearest")
             ax.set_title(title)
             ax.set_xticks([])

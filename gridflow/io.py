@@ -48,6 +48,10 @@ class atomic_write:
     def __exit__(self, exc_type, exc, tb):
         self.fh.close()
         if exc_type is None:
+            # mkstemp makes the file private (0600); give it the usual umask permissions
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(self.tmp, 0o666 & ~umask)
             os.replace(self.tmp, self.path)
         else:
             os.unlink(self.tmp)

@@ -181,17 +181,28 @@ def run_point(spec: SweepSpec, point: Point) -> pd.DataFrame:
     sv = make_sinusoid(params)
     res = estimate_models(sv.volume, sv.focal_length, sv.camera_spacing, models=spec.models,
                           principal_point=sv.principal_point, **spec.estimator)
-    gen = json.dumps(params.as_dict(), sort_keys=True)
+    gen = _diff_json(params.as_dict(), SinusoidParams().as_dict())
     rows = []
     for model in spec.models:
         e = res[model]
-        est = json.dumps({k: v for k, v in e.settings.items() if k != "model"}, sort_keys=True)
+        f = e.settings["filters"]
+        est = _diff_json(e.settings, {**EstimatorSettings().__dict__, "model": model,
+                                      "filters_xy": f, "filters_sx": f, "filters_sy": f,
+                                      "filters_t": f})
         for r in evaluate(e.maps, sv.truth, e.interior):
             rows.append({"sweep": spec.name, "param": point.param, "value": point.value,
                          "noise": point.noise, "seed": point.seed, "model": model, **r,
                          "generator": gen, "estimator": est})
     df = pd.DataFrame(rows)
     return df[COLUMNS]
+
+
+def _diff_json(values: dict, defaults: dict) -> str:
+    """JSON of the entries that differ from the documented defaults (keeps the CSV small;
+    the defaults themselves are recorded in the sweep's ``.json`` sidecar)."""
+    diff = {k: (list(v) if isinstance(v, tuple) else v) for k, v in values.items()
+            if k not in defaults or defaults[k] != v}
+    return json.dumps(diff, sort_keys=True, separators=(",", ":"))
 
 
 def _run_to_part(spec: SweepSpec, point: Point, part: str) -> str:
@@ -283,12 +294,31 @@ def run_sweep(spec: SweepSpec, output, *, workers: int | None = None, progress: 
                 _drain(futs, bar)
     finally:
         bar.close()
-    df = _order(pd.concat([pd.read_csv(p) for p in parts], ignore_index=True), spec)
+    df = _order(pd.concat([pd.read_csv(p, keep_default_na=False, na_values=[""])
+                           for p in parts], ignore_index=True), spec)
     with atomic_write(output, "w") as fh:
-        df.to_csv(fh, index=False)
+        df.to_csv(fh, index=False, float_format="%.7g")
+    with atomic_write(output.with_suffix(".json"), "w") as fh:
+        json.dump(provenance(spec), fh, indent=1, sort_keys=True)
+        fh.write("\n")
     if not keep_parts:
         shutil.rmtree(parts_dir, ignore_errors=True)
     return df
+
+
+def provenance(spec: SweepSpec) -> dict:
+    """What made a sweep CSV: the spec, the full defaults the CSV's JSON columns are
+    relative to, the numerics' code fingerprint and library versions."""
+    import scipy
+
+    return {"spec": {"name": spec.name, "models": spec.models, "noise": spec.noise,
+                     "seeds": spec.seeds, "base": spec.base, "estimator": spec.estimator,
+                     "axes": [{"param": p, "values": v} for p, v in spec.axes]},
+            "generator_defaults": SinusoidParams().as_dict(),
+            "estimator_defaults": EstimatorSettings().__dict__,
+            "code_fingerprint": _code_fingerprint(),
+            "versions": {"numpy": np.__version__, "scipy": scipy.__version__,
+                         "pandas": pd.__version__}}
 
 
 def _drain(futs, bar, executor=None) -> None:

@@ -1,0 +1,109 @@
+"""Sweep runner: spec validation, reproducibility, interruption, CLI."""
+
+import pandas as pd
+import pytest
+
+import gridflow.sweep as sweep_mod
+from gridflow.cli import main
+from gridflow.sweep import SpecError, SweepSpec, run_point, run_sweep
+
+SMALL = {"height": 80, "width": 80, "frames": 7}
+
+
+def _spec(**over):
+    raw = {"sweep": {"name": "t", "models": ["bcc", "full"], "noise": [0.0, 0.02],
+                     "seeds": [3]},
+           "base": dict(SMALL), "axis": [{"param": "a1", "values": [0.0, 0.3]},
+                                         {"param": "a2x", "values": [-0.001]}]}
+    for k, v in over.items():
+        raw[k] = v
+    return SweepSpec.from_dict(raw)
+
+
+@pytest.mark.parametrize("over, match", [
+    ({"axis": [{"param": "a3", "values": [1.0]}]}, "unknown parameter 'a3'"),
+    ({"axis": [{"param": "a1", "values": []}]}, "empty or missing 'values'"),
+    ({"axis": [{"param": "a1"}]}, "empty or missing 'values'"),
+    ({"axis": []}, "no \\[\\[axis\\]\\]"),
+    ({"axis": [{"param": "a1", "values": [0.1, 0.1]}]}, "repeats"),
+    ({"axis": [{"param": "a2", "values": [-0.1, -50.0]}]}, "a2 = -50.0: brightness exponent"),
+    ({"sweep": {"models": ["bcc", "affine"]}}, "unknown or no model"),
+    ({"sweep": {"noise": [-0.1]}}, "noise"),
+    ({"base": {"height": 80, "colour": 3}}, "unknown sinusoid parameter"),
+    ({"estimator": {"sigma": 8, "gamma": 2}}, "\\[estimator\\]"),
+    ({"plots": {}}, "unknown section"),
+])
+def test_bad_specs_fail_before_any_work(over, match, tmp_path):
+    with pytest.raises(SpecError, match=match):
+        _spec(**over)
+
+
+def test_spec_file_errors(tmp_path):
+    with pytest.raises(SpecError, match="no such sweep spec"):
+        SweepSpec.from_toml(tmp_path / "none.toml")
+    (tmp_path / "bad.toml").write_text("[sweep\nname=1")
+    with pytest.raises(SpecError, match="not valid TOML"):
+        SweepSpec.from_toml(tmp_path / "bad.toml")
+
+
+def test_repository_specs_are_valid():
+    spec = SweepSpec.from_toml("bench/sweeps/paper.toml")
+    assert [p for p, _ in spec.axes] == ["a1", "a1x", "a2", "a2x"]
+
+
+def test_rows_and_order_do_not_depend_on_execution(tmp_path):
+    spec = _spec()
+    a = run_sweep(spec, tmp_path / "a.csv", workers=1, progress=False)
+    b = run_sweep(spec, tmp_path / "b.csv", workers=2, progress=False)
+    assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+    # one row per (point, model, quantity); every estimated quantity recorded
+    assert len(a) == 3 * 2 * (6 + 12)
+    assert set(a[a.model == "full"].quantity) == {"Z", "Zx", "Zy", "Ux", "Uy", "Uz", "a1", "a2",
+                                                   "a1x", "a1y", "a2x", "a2y"}
+    assert list(a.columns) == sweep_mod.COLUMNS
+    # a point computed on its own gives the same numbers as inside the sweep
+    p = spec.points()[3]
+    alone = run_point(spec, p)
+    inside = b[(b.param == p.param) & (b.value == p.value) & (b.noise == p.noise)]
+    pd.testing.assert_series_equal(alone.q_abs.reset_index(drop=True),
+                                   inside.q_abs.reset_index(drop=True), rtol=1e-6)
+    assert not (tmp_path / "a.csv.parts").exists()
+    assert (tmp_path / "a.json").exists()
+
+
+def test_interrupted_sweep_leaves_no_csv_and_resumes(tmp_path, monkeypatch):
+    spec = _spec()
+    calls, armed = [], [True]
+    real = sweep_mod.run_point
+
+    def flaky(spec_, point):
+        calls.append(point)
+        if armed[0] and len(calls) == 3:
+            armed[0] = False
+            raise KeyboardInterrupt("killed")
+        return real(spec_, point)
+
+    monkeypatch.setattr(sweep_mod, "run_point", flaky)
+    out = tmp_path / "s.csv"
+    out.write_text("old result\n")
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(spec, out, workers=1, progress=False)
+    assert out.read_text() == "old result\n"             # the old file is untouched
+    parts = list((tmp_path / "s.csv.parts").glob("*.csv"))
+    assert len(parts) == 2                               # the finished points survived
+    assert not list((tmp_path / "s.csv.parts").glob(".*tmp"))
+    calls.clear()
+    df = run_sweep(spec, out, workers=1, progress=False)
+    assert len(calls) == len(spec.points()) - 2           # only the missing points ran
+    fresh = run_sweep(spec, tmp_path / "fresh.csv", workers=1, progress=False)
+    pd.testing.assert_frame_equal(df, fresh)
+
+
+def test_cli_sweep_with_flags(tmp_path, capsys):
+    out = tmp_path / "s.csv"
+    assert main(["sweep", "--param", "a1", "--values", "0", "0.2", "--models", "hf",
+                 "--no-progress", "-o", str(out), "--workers", "1"]) == 0
+    df = pd.read_csv(out)
+    assert set(df.model) == {"hf"} and sorted(set(df.value)) == [0.0, 0.2]
+    assert main(["sweep", "--param", "a9", "--values", "1", "-o", str(out)]) == 2
+    assert "unknown parameter" in capsys.readouterr().err

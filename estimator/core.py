@@ -39,9 +39,12 @@ class EstimatorSettings:
         Default: as many as the temporal filter allows, at most 2.
     ref_frame : int or None
         Reference frame ``k_ref``; default the centre frame ``(T - 1) // 2``.
-    method : {"grouped", "reference"}
-        Structure-tensor implementation (same result; "reference" is the straightforward
-        entry-by-entry one).
+    method : {"fast", "grouped", "reference"}
+        Implementation; all give the same result to roundoff.  "fast" (default): FFT
+        moment smoothing and a numba null-space solver (:mod:`estimator._fast`);
+        "grouped": direct 65-tap smoothing of grouped products and LAPACK ``eigh``;
+        "reference": the straightforward entry-by-entry tensor and ``eigh`` (the
+        baseline of ``bench/``).
     slant_correction : bool
         Remove the slant-motion coupling from ``U_Z`` (see :mod:`estimator.solve`).
     band_rows : int or None
@@ -53,7 +56,7 @@ class EstimatorSettings:
     filters: str = "matched5"
     temporal_radius: int | None = None
     ref_frame: int | None = None
-    method: str = "grouped"
+    method: str = "fast"
     slant_correction: bool = True
     band_rows: int | None = None
 
@@ -94,10 +97,17 @@ def _check_volume(volume) -> np.ndarray:
         raise InputError(
             f"volume must be float32 or float64, got {volume.dtype}; convert integer "
             "images with volume.astype(np.float64) (intensities must be linear)")
-    bad = ~np.isfinite(volume)
-    if bad.any():
-        first = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise InputError(f"volume has {int(bad.sum())} non-finite values (NaN or inf); "
+    # frame by frame: a whole-volume boolean mask would cost a quarter of the volume
+    count, first = 0, None
+    for k in range(volume.shape[0]):
+        bad = ~np.isfinite(volume[k])
+        nbad = int(np.count_nonzero(bad))
+        if nbad:
+            count += nbad
+            if first is None:
+                first = (k,) + tuple(int(i) for i in np.argwhere(bad)[0])
+    if count:
+        raise InputError(f"volume has {count} non-finite values (NaN or inf); "
                          f"first at index (t, sy, sx, y, x) = {first}")
     return volume
 
@@ -139,8 +149,8 @@ def _prepare(volume, focal_length, camera_spacing, principal_point, s: Estimator
         raise InputError(f"sigma must be positive, got {s.sigma}")
     if int(s.window) != s.window or s.window < 3 or s.window % 2 == 0:
         raise InputError(f"window must be an odd number of taps >= 3, got {s.window}")
-    if s.method not in ("grouped", "reference"):
-        raise InputError(f"method must be 'grouped' or 'reference', got {s.method!r}")
+    if s.method not in ("fast", "grouped", "reference"):
+        raise InputError(f"method must be 'fast', 'grouped' or 'reference', got {s.method!r}")
     spatial = get_filter_pair(s.filters)
     cam_x = _axis_pair(s.filters, Sx, "cameras along x")
     cam_y = _axis_pair(s.filters, Sy, "cameras along y") if Sy > 1 else None
@@ -230,12 +240,20 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     sub = {m: np.array([union.index(r) for r in mdl[m].rows]) for m in models}
     frames = np.arange(c["k_ref"] - c["R_t"], c["k_ref"] + c["R_t"] + 1)
     tvals = frames - c["k_ref"]
-    ct = camera_time_signals(vol, frames, c["cam_x"], c["cam_y"], c["time"])
     kernels = gaussian_moment_kernels(s.sigma, s.window)
     halo = c["halo"]
     n = union.n
-    band = s.band_rows or max(8, int(256e6 // (W * n * n * 8 * 3)))
-    tensor = structure_tensor if s.method == "grouped" else structure_tensor_reference
+    # J of a band takes rows * W * n^2 * 8 bytes; bound it (and the FFT work arrays) to
+    # ~512 MB, so memory does not grow with the image.
+    band = s.band_rows or max(16, int(512e6 // (W * n * n * 8)))
+    if s.method == "fast":
+        from ._fast import null_space_fast, packed_index, structure_tensor_fft
+
+        tensor = structure_tensor_fft
+        pidx = packed_index(n)
+    else:
+        tensor = structure_tensor if s.method == "grouped" else structure_tensor_reference
+        solver = null_space
 
     interior = np.zeros((H, W), dtype=bool)
     interior[halo:H - halo, halo:W - halo] = True
@@ -245,18 +263,28 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     for r0 in range(halo, H - halo, band):
         r1 = min(r0 + band, H - halo)
         rows_in = slice(r0 - halo, r1 + halo)
-        sig = spatial_signals({k: a[:, rows_in] for k, a in ct.items()}, c["spatial"])
-        J = tensor(sig, tvals, union.rows, kernels, s.window // 2 + 0)
+        ct = camera_time_signals(vol, frames, c["cam_x"], c["cam_y"], c["time"], rows_in)
+        sig = spatial_signals(ct, c["spatial"])
+        del ct
         # J covers rows r0 - spatial.radius .. r1 + spatial.radius; keep the band
         rs = c["spatial"].radius
-        J = J[rs:J.shape[0] - rs, cols]
+        if s.method == "fast":
+            Jp = tensor(sig, tvals, union.rows, kernels, s.window // 2 + rs,
+                        cols=slice(halo, W - halo))
+            Jp = Jp.reshape(Jp.shape[0], -1)
+        else:
+            J = tensor(sig, tvals, union.rows, kernels, s.window // 2)
+            Jf = J[rs:J.shape[0] - rs, cols].reshape(-1, n, n)
+            del J
+        del sig
         yy, xx = np.meshgrid(np.arange(r0, r1), cols, indexing="ij")
         x0 = (xx - c["cx"]).ravel().astype(float)
         y0 = (yy - c["cy"]).ravel().astype(float)
-        Jf = J.reshape(-1, n, n)
         for m in models:
-            Jm = Jf[:, sub[m][:, None], sub[m][None, :]]
-            P, g, err, valid = null_space(Jm, mdl[m])
+            if s.method == "fast":
+                P, g, err, valid, _ = null_space_fast(Jp, mdl[m], pidx[np.ix_(sub[m], sub[m])])
+            else:
+                P, g, err, valid = solver(Jf[:, sub[m][:, None], sub[m][None, :]], mdl[m])
             res = disentangle(P, g, mdl[m], x0, y0, c["f"], c["spacing"],
                               slant_correction=s.slant_correction)
             res["model_error"] = np.where(valid, err, np.nan)

@@ -36,17 +36,22 @@ from .models import Model
 __all__ = ["null_space", "disentangle"]
 
 # A pixel is degenerate when J has more (near-)zero eigenvalues than the model's null
-# space: the (k+1)-th smallest eigenvalue below this fraction of the largest.  1e-11 is
-# ~1e5 float64 roundoffs of the largest eigenvalue, far below any textured data we
-# measured (>= 1e-7 on the sinusoids).
+# space: the (k+1)-th smallest eigenvalue below this fraction of trace(J).  1e-11 is ~1e5
+# float64 roundoffs of the trace, far below any textured data we measured (>= 1e-7 on the
+# sinusoids).
 RANK_TOL = 1e-11
-# M (3x3 of orthonormal vectors' rows, singular values <= 1) must be invertible for the
+# M (kxk of orthonormal vectors' rows, singular values <= 1) must be invertible for the
 # ds/dt directions to be in the null space at all.
 M_TOL = 1e-6
+# J_qq is inverted with this ridge (times trace J): J is only positive semi-definite.
+# (The fast solver uses the same value as the shift of its inverse iteration.)
+RIDGE = 1e-13
+# Rows whose two estimates are combined (their g is needed).
+COMBINED_ROWS = ("Ix", "Iy", "IxDx", "IxDy", "IyDx", "IyDy")
 
 
 def null_space(J: np.ndarray, model: Model):
-    """Eigen-decompose J and form the parameter vectors of the solution space.
+    """Eigen-decompose J (LAPACK, all eigenpairs) and form the parameter vectors.
 
     Parameters
     ----------
@@ -59,27 +64,30 @@ def null_space(J: np.ndarray, model: Model):
         Parameter vectors; column c has the fixed rows equal to the c-th unit vector
         (k = 3 for a 2-D grid: ds_x, ds_y, dt; k = 2 for a 1-D grid: ds_x, dt).
     g : ndarray, shape (N, n)
-        ``(J_qq^-1)_rr`` for every row (0 on the fixed rows), the row factor of the
-        error estimate.
+        ``(J_qq^-1)_rr`` for every non-fixed row (NaN on the fixed rows), the row factor
+        of the error estimate.
     model_error : ndarray, shape (N,)
         Largest of the k smallest eigenvalues (Fig. 1's colour code).
     valid : ndarray of bool, shape (N,)
     """
     k = model.null_dim
+    n = model.n
     fixed = [model.index(r) for r in model.fixed_rows]
+    q = np.array([i for i in range(n) if i not in fixed])
     lam, V = np.linalg.eigh(J)
-    E, Er, lam_r = V[..., :k], V[..., k:], lam[..., k:]
-    scale = lam[..., -1]
-    valid = np.isfinite(scale) & (scale > 0) & (lam[..., k] > RANK_TOL * scale)
+    E = V[..., :k]
+    tr = np.trace(J, axis1=-2, axis2=-1)
+    valid = np.isfinite(tr) & (tr > 0) & (lam[..., k] > RANK_TOL * tr)
     M = E[:, fixed, :]                                   # (N, k, k)
     smin = np.linalg.svd(M, compute_uv=False)[..., -1]
     valid &= smin > M_TOL
     M[~valid] = np.eye(k)
     # P = E M^-1, i.e. P^T = solve(M^T, E^T)
     P = np.linalg.solve(np.swapaxes(M, -1, -2), np.swapaxes(E, -1, -2)).swapaxes(-1, -2)
-    G = Er - P @ Er[:, fixed, :]                         # (I - P S) E_rest
-    with np.errstate(divide="ignore", invalid="ignore"):
-        g = np.einsum("nri,ni->nr", G * G, 1.0 / np.where(valid[:, None], lam_r, 1.0))
+    Jq = J[:, q[:, None], q[None, :]] + (RIDGE * np.where(valid, tr, 1.0))[:, None, None] * np.eye(q.size)
+    Jq[~valid] = np.eye(q.size)
+    g = np.full((J.shape[0], n), np.nan)
+    g[:, q] = np.diagonal(np.linalg.inv(Jq), axis1=-2, axis2=-1)
     P[~valid] = np.nan
     g[~valid] = np.nan
     return P, g, lam[..., k - 1], valid

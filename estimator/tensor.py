@@ -29,15 +29,14 @@ __all__ = ["camera_time_signals", "spatial_signals", "gaussian_moment_kernels",
            "structure_tensor", "structure_tensor_reference"]
 
 
-def _axis_filter(a: np.ndarray, kernel: np.ndarray, axis: int, centre: int) -> np.ndarray:
-    """Apply ``kernel`` along ``axis`` at index ``centre`` only (axis removed)."""
+def _taps(kernel: np.ndarray, centre: int):
     r = kernel.size // 2
-    sl = np.take(a, np.arange(centre - r, centre + r + 1), axis=axis)
-    return np.tensordot(kernel, np.moveaxis(sl, axis, 0), axes=(0, 0))
+    return [(centre + o, float(w)) for o, w in zip(range(-r, r + 1), kernel) if w != 0.0]
 
 
 def camera_time_signals(volume: np.ndarray, frames: np.ndarray, cam_x: FilterPair,
-                        cam_y: FilterPair | None, time: FilterPair) -> dict[str, np.ndarray]:
+                        cam_y: FilterPair | None, time: FilterPair,
+                        rows: slice = slice(None)) -> dict[str, np.ndarray]:
     """Filter the camera and time axes at the reference camera.
 
     Parameters
@@ -49,33 +48,54 @@ def camera_time_signals(volume: np.ndarray, frames: np.ndarray, cam_x: FilterPai
         Filters across the camera axes, applied at the centre camera.  ``cam_y`` is None
         for a 1-D grid (``Sy = 1``).
     time : FilterPair
+    rows : slice
+        Image rows to process (a band); only views of the volume are taken, so memory
+        grows with the band, not the volume.
 
     Returns
     -------
-    dict of str to ndarray, each shape (F, H, W)
+    dict of str to ndarray, each shape (F, h, W), float64
         ``"p"``: prefiltered along sx, sy, t; ``"sx"``, ``"sy"``, ``"t"``: derivative
         along that axis, prefiltered along the others (``"sy"`` absent for 1-D grids).
     """
     T, Sy, Sx, H, W = volume.shape
     jc, ic = (Sx - 1) // 2, (Sy - 1) // 2
-    # Reduce the camera axes first: they are the smallest, and everything after works
-    # on (T, H, W) stacks.
-    vp = _axis_filter(volume, cam_x.prefilter, 2, jc)      # (T, Sy, H, W)
-    vd = _axis_filter(volume, cam_x.derivative, 2, jc)
-    if cam_y is None:
-        spp, sdp, spd = vp[:, 0], vd[:, 0], None
-    else:
-        spp = _axis_filter(vp, cam_y.prefilter, 1, ic)     # (T, H, W)
-        sdp = _axis_filter(vd, cam_y.prefilter, 1, ic)
-        spd = _axis_filter(vp, cam_y.derivative, 1, ic)
+    ys = [(ic, 1.0)] if cam_y is None else _taps(cam_y.prefilter, ic)
+    yd = [] if cam_y is None else _taps(cam_y.derivative, ic)
+    xs, xd = _taps(cam_x.prefilter, jc), _taps(cam_x.derivative, jc)
+    needed = sorted({int(k) + o for k in frames for o in range(-time.radius, time.radius + 1)})
+    # Camera axes first, per frame: one weighted sum over the grid's (sy, sx) taps, so
+    # every array below is (h, W) or (F, h, W) and only views of the volume are read.
+    iy = [i for i, _ in ys] if cam_y is None else [i for i, _ in _taps(cam_y.prefilter, ic)]
+    iy = sorted(set(iy) | {i for i, _ in yd})
+    ix = sorted({j for j, _ in xs} | {j for j, _ in xd})
 
-    def along_t(a: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-        return np.stack([_axis_filter(a, kernel, 0, int(k)) for k in frames])
+    def weights(ytaps, xtaps):
+        w = np.zeros((len(iy), len(ix)))
+        for i, wy in ytaps:
+            for j, wx in xtaps:
+                w[iy.index(i), ix.index(j)] = wy * wx
+        return w
 
-    out = {"p": along_t(spp, time.prefilter), "t": along_t(spp, time.derivative),
-           "sx": along_t(sdp, time.prefilter)}
-    if spd is not None:
-        out["sy"] = along_t(spd, time.prefilter)
+    combos = {"pp": weights(ys, xs), "dp": weights(ys, xd)}
+    if cam_y is not None:
+        combos["pd"] = weights(yd, xs)
+    cams: dict[str, dict[int, np.ndarray]] = {key: {} for key in combos}
+    ysl = slice(iy[0], iy[-1] + 1)
+    xsl = slice(ix[0], ix[-1] + 1)
+    for k in needed:
+        block = volume[k, ysl, xsl, rows]              # view (ny, nx, h, W)
+        for key, w in combos.items():
+            cams[key][k] = np.einsum("ij,ijhw->hw", w, block, dtype=np.float64,
+                                     optimize=False)
+
+    def along_t(src: dict[int, np.ndarray], kernel: np.ndarray) -> np.ndarray:
+        return np.stack([sum(w * src[kk] for kk, w in _taps(kernel, int(k))) for k in frames])
+
+    out = {"p": along_t(cams["pp"], time.prefilter), "t": along_t(cams["pp"], time.derivative),
+           "sx": along_t(cams["dp"], time.prefilter)}
+    if cam_y is not None:
+        out["sy"] = along_t(cams["pd"], time.prefilter)
     return out
 
 
@@ -94,18 +114,23 @@ def spatial_signals(ct: dict[str, np.ndarray], spatial: FilterPair) -> dict[str,
         ``"x", "y", "sx", "sy", "t", "I"`` (``"sy"`` only if present in ``ct``).  Rows
         within ``spatial.radius`` of the band's edges are not valid.
     """
+    from concurrent.futures import ThreadPoolExecutor
+
     p, d = spatial.prefilter, spatial.derivative
 
-    def sep(a, kx, ky):
+    def sep(job):
+        a, kx, ky = job
         a = correlate1d(np.asarray(a, dtype=np.float64), kx, axis=-1, mode="nearest")
         return correlate1d(a, ky, axis=-2, mode="nearest")
 
     base = ct["p"]
-    out = {"x": sep(base, d, p), "y": sep(base, p, d), "I": sep(base, p, p),
-           "sx": sep(ct["sx"], p, p), "t": sep(ct["t"], p, p)}
+    jobs = {"x": (base, d, p), "y": (base, p, d), "I": (base, p, p),
+            "sx": (ct["sx"], p, p), "t": (ct["t"], p, p)}
     if "sy" in ct:
-        out["sy"] = sep(ct["sy"], p, p)
-    return out
+        jobs["sy"] = (ct["sy"], p, p)
+    # scipy.ndimage releases the GIL: the six signals are filtered on all cores
+    with ThreadPoolExecutor() as ex:
+        return dict(zip(jobs, ex.map(sep, jobs.values())))
 
 
 def gaussian_moment_kernels(sigma: float, window: int) -> np.ndarray:

@@ -234,10 +234,12 @@ def make_sinusoid(params: SinusoidParams | None = None, *, dtype=np.float64,
                 h = ((p.a1 + p.a1x * Xm + p.a1y * Ym) * t
                      + (p.a2 + p.a2x * Xm + p.a2y * Ym) * t * t)
                 tex = p.offset + 0.5 * p.amplitude * (np.sin(kx * Xm) + np.sin(ky * Ym))
-                vol[k, i, j] = tex * np.exp(h)
-    if p.noise > 0:
-        # One draw over the whole volume in C order: reproducible from the seed alone.
-        vol += (p.noise * rng.standard_normal(vol.shape)).astype(dtype)
+                img = tex * np.exp(h)
+                if p.noise > 0:
+                    # image by image, in C order: reproducible from the seed alone, and
+                    # no volume-sized float64 temporary
+                    img += p.noise * rng.standard_normal(img.shape)
+                vol[k, i, j] = img
     return SyntheticVolume(volume=vol, focal_length=p.f, camera_spacing=(dsx, dsy),
                            principal_point=((p.width - 1) / 2.0, (p.height - 1) / 2.0),
                            truth=ground_truth(p), meta={"generator": "sinusoid", "params": p.as_dict()})

@@ -40,7 +40,8 @@ def _add_estimator_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--temporal-radius", type=int, default=None,
                    help="frames either side of the reference frame in the window")
     g.add_argument("--ref-frame", type=int, default=None, help="reference frame index")
-    g.add_argument("--method", choices=("grouped", "reference"), default="grouped")
+    g.add_argument("--method", choices=("fast", "grouped", "reference"), default="fast",
+                   help="implementation (same results; default fast)")
     g.add_argument("--no-slant-correction", action="store_true",
                    help="read U_Z as the paper does (no slant-motion correction)")
 

@@ -153,7 +153,7 @@ def test_bcc_runs_on_three_frames_full_does_not():
     (dict(window=64), "odd"),
     (dict(filters="sobel"), "unknown filter"),
     (dict(temporal_radius=5), "temporal_radius"),
-    (dict(method="fast"), "method"),
+    (dict(method="turbo"), "method"),
 ])
 def test_bad_settings(kw, match):
     with pytest.raises((InputError, ValueError), match=match):

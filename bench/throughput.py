@@ -76,17 +76,27 @@ def compare(size: int, models, repeat: int, baseline: bool = True) -> list[dict]
     return rows
 
 
+def _peak_rss_mb() -> float:
+    """Peak resident set size of this process (VmHWM; unlike ru_maxrss it is not
+    inherited across fork + exec from the parent)."""
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def _one_size(size: int) -> dict:
     """Run in a fresh process: estimate one float32 volume, report time and peak RSS."""
     sv = _volume(size, dtype=np.float32)
     estimate(sv.volume[..., :80, :80], sv.focal_length, sv.camera_spacing)   # compile
-    rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**10
+    rss_before = _peak_rss_mb()
     t0 = time.perf_counter()
     estimate(sv.volume, sv.focal_length, sv.camera_spacing, model="full")
     dt = time.perf_counter() - t0
     return {"size": size, "seconds": dt, "px_s": size * size / dt,
             "volume_MB": sv.volume.nbytes / 2**20, "rss_before_MB": rss_before,
-            "peak_rss_MB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**10}
+            "peak_rss_MB": _peak_rss_mb()}
 
 
 def scaling(sizes) -> list[dict]:
@@ -98,8 +108,8 @@ def scaling(sizes) -> list[dict]:
         out.append(json.loads(res.stdout.strip().splitlines()[-1]))
         r = out[-1]
         print(f"  {size:>5} px  {r['seconds']:7.2f} s  {r['px_s'] / 1e3:8.1f} kpx/s  "
-              f"volume {r['volume_MB']:7.0f} MB  peak RSS {r['peak_rss_MB']:7.0f} MB",
-              flush=True)
+              f"volume {r['volume_MB']:7.0f} MB  peak RSS {r['peak_rss_MB']:7.0f} MB "
+              f"(before estimating {r['rss_before_MB']:.0f} MB)", flush=True)
     return out
 
 

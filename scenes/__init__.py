@@ -1,0 +1,5 @@
+"""POV-Ray scene templates (the cube of Sec. 4.2) and their analytic ground truth."""
+
+from .cube import FACE_NAMES, CubeScene, cube_truth, scene_sdl
+
+__all__ = ["CubeScene", "scene_sdl", "cube_truth", "FACE_NAMES"]

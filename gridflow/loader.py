@@ -80,7 +80,13 @@ def _read_image(path: Path) -> tuple[np.ndarray, str]:
     import imageio.v3 as iio
 
     try:
-        img = iio.imread(path)
+        data = path.read_bytes()
+    except OSError as exc:
+        raise LoaderError(f"{path}: unreadable file ({exc})") from None
+    try:
+        # from bytes: imageio leaves file handles open when it tries its plugins on a
+        # corrupt file
+        img = iio.imread(data, extension=path.suffix.lower())
     except Exception as exc:  # imageio raises many types for corrupt files
         raise LoaderError(f"{path}: unreadable image ({exc})") from None
     kind = str(img.dtype)

@@ -1,0 +1,96 @@
+"""The POV-Ray cube end to end: render (small), load, estimate; ground truth checked
+against what the images show.  Needs Debian's `povray` (.ci/run installs it)."""
+
+import numpy as np
+import pytest
+
+from gridflow.cli import main
+from gridflow.cube import cube_table, face_interior, observation11, run_cube
+from gridflow.io import load_estimate
+from gridflow.loader import load_folder
+from gridflow.render import PovrayMissing, povray_binary, render_cube
+from scenes import CubeScene, cube_truth
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    """64x64, 3x3 cameras, 5 frames: the CI version of the scene."""
+    root = tmp_path_factory.mktemp("cube")
+    scene = CubeScene(width=64, height=64, grid=(3, 3), frames=5)
+    return scene, render_cube(scene, root, progress=False)
+
+
+def test_render_writes_a_loadable_grid(small):
+    scene, folder = small
+    d = load_folder(folder)
+    assert d.volume.shape == (5, 3, 3, 64, 64)
+    assert d.meta["pixel_type"] == "uint16"
+    # linear 16-bit rendering of a lit texture: not black, not saturated
+    assert 0.0 <= d.volume.min() and d.volume.max() < 1.0 and d.volume.mean() > 0.05
+    assert set(d.truth) >= {"Z", "Zx", "Zy", "Uz", "face", "interior"}
+
+
+def test_render_is_cached(small, tmp_path):
+    scene, folder = small
+    before = {p: p.stat().st_mtime_ns for p in folder.glob("*.png")}
+    assert render_cube(scene, folder.parent, progress=False) == folder
+    assert {p: p.stat().st_mtime_ns for p in folder.glob("*.png")} == before
+
+
+def test_end_to_end_through_cli(small, tmp_path):
+    _, folder = small
+    out = tmp_path / "est.npz"
+    assert main(["estimate", str(folder), "--model", "full", "--sigma", "4", "--window", "17",
+                 "-o", str(out)]) == 0
+    maps, interior, meta = load_estimate(out)
+    assert meta["settings"]["ref_frame"] is None or meta["settings"]["ref_frame"] == 2
+    assert np.isfinite(maps["Z"][interior]).mean() > 0.5
+
+
+def test_cube_table_and_observation(small):
+    _, folder = small
+    d = load_folder(folder)
+    res = run_cube(d, sigma=4.0, window=17)
+    t = cube_table(d, res)
+    assert list(t.face.unique()) == ["left", "right"] and len(t) == 6
+    assert all(isinstance(r["holds"], bool) for r in observation11(t))
+
+
+def test_analytic_truth_matches_the_images(tmp_path):
+    """A static, evenly lit render: brightness constancy holds, so BCC's depth and slopes
+    must match the ray-cast truth on the face interiors.  Measured at this size (192 px,
+    sigma 6): median |Z/Z_true - 1| = 4.4e-4; median Z_X -1.78 on the left face (truth
+    -1.732: the steep face is only ~40 px wide) and 0.575 on the right (truth 0.577);
+    |median Z_Y| <= 0.006.  The bounds below leave 3-20x room for that, and a convention
+    error lands far outside them: a focal length off by 2 or camera spacing in other
+    units scales Z by >= 2; a flipped X axis flips the sign of Z_X; a flipped Y axis or a
+    transposed grid moves the slope into Z_Y."""
+    scene = CubeScene(width=192, height=192, grid=(3, 3), frames=5, static=True,
+                      spotlight=False)
+    d = load_folder(render_cube(scene, tmp_path, progress=False))
+    e = run_cube(d, sigma=6.0, window=25)["bcc"]
+    face = d.truth["face"]
+    inner = face_interior(face, 12) & e.interior
+    assert abs(np.nanmedian(e["Z"][inner] / d.truth["Z"][inner]) - 1) < 0.01
+    for fid, zx in ((1, -np.sqrt(3)), (2, 1 / np.sqrt(3))):
+        m = inner & (face == fid)
+        assert m.sum() > 1000
+        assert abs(np.nanmedian(e["Zx"][m]) - zx) < 0.1 * abs(zx)
+        assert abs(np.nanmedian(e["Zy"][m])) < 0.05
+
+
+def test_truth_geometry():
+    t = cube_truth(CubeScene())
+    for fid, zx in ((1, -np.sqrt(3)), (2, 1 / np.sqrt(3))):
+        np.testing.assert_allclose(t["Zx"][t["face"] == fid], zx, rtol=1e-12)
+    assert np.all(np.isnan(t["Z"][t["face"] == 0]))
+    assert np.nanmin(t["Z"]) > 300 and np.all(t["Uz"][t["face"] > 0] == -2.0)
+
+
+def test_missing_povray_is_a_clear_error(monkeypatch, tmp_path):
+    monkeypatch.setenv("POVRAY", "no-such-povray-binary")
+    with pytest.raises(PovrayMissing, match="apt-get install povray"):
+        povray_binary()
+    with pytest.raises(PovrayMissing):
+        render_cube(CubeScene(width=16, height=16, grid=(3, 3), frames=3), tmp_path,
+                    progress=False)

@@ -1,0 +1,129 @@
+"""Camera-grid folders: reading and every kind of bad folder."""
+
+import json
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from gridflow.loader import LoaderError, load_folder
+
+PATTERN = "t{t:02d}_y{sy}_x{sx}.png"
+
+
+def _make(folder, T=3, Sy=3, Sx=3, H=12, W=10, dtype=np.uint16, **manifest):
+    folder.mkdir(exist_ok=True)
+    rng = np.random.default_rng(0)
+    vol = rng.random((T, Sy, Sx, H, W))
+    scale = {np.uint8: 255, np.uint16: 65535}[dtype]
+    for t in range(T):
+        for i in range(Sy):
+            for j in range(Sx):
+                iio.imwrite(folder / PATTERN.format(t=t, sy=i, sx=j),
+                            np.round(vol[t, i, j] * scale).astype(dtype))
+    m = {"focal_length": 500.0, "camera_spacing": [0.1, 0.2], "grid": [Sy, Sx], "frames": T,
+         "pattern": PATTERN, "reference_camera": [(Sy - 1) // 2, (Sx - 1) // 2]}
+    m.update(manifest)
+    (folder / "grid.json").write_text(json.dumps(m))
+    return vol, scale
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_png_folder_roundtrip(tmp_path, dtype):
+    vol, scale = _make(tmp_path / "f", dtype=dtype)
+    d = load_folder(tmp_path / "f")
+    assert d.volume.shape == (3, 3, 3, 12, 10)
+    # quantisation: half a grey level
+    assert np.max(np.abs(d.volume - vol)) <= 0.5 / scale + 1e-12
+    assert d.focal_length == 500.0 and d.camera_spacing == (0.1, 0.2)
+    assert d.principal_point == (4.5, 5.5)
+
+
+def test_float_tiff_and_truth(tmp_path):
+    f = tmp_path / "f"
+    f.mkdir()
+    vol = np.random.default_rng(1).random((3, 1, 3, 8, 9)).astype(np.float32)
+    for t in range(3):
+        for j in range(3):
+            iio.imwrite(f / f"frame{t}_cam{j}_0.tif", vol[t, 0, j])
+    (f / "truth").mkdir()
+    np.save(f / "truth" / "Z.npy", np.full((8, 9), 42.0))
+    (f / "grid.json").write_text(json.dumps({
+        "focal_length": 100, "camera_spacing": [1, 0], "grid": [1, 3], "frames": 3,
+        "pattern": "frame{t}_cam{sx}_{sy}.tif", "truth": {"Z": "truth/Z.npy"},
+        "principal_point": [4.0, 3.5], "reference_frame": 1}))
+    d = load_folder(f)
+    np.testing.assert_array_equal(d.volume, vol.astype(np.float64))
+    assert d.truth["Z"][0, 0] == 42.0 and d.principal_point == (4.0, 3.5)
+    assert d.meta["ref_frame"] == 1
+
+
+def _expect(folder, match):
+    with pytest.raises(LoaderError, match=match):
+        load_folder(folder)
+
+
+def test_missing_image(tmp_path):
+    _make(tmp_path / "f")
+    (tmp_path / "f" / "t01_y1_x2.png").unlink()
+    _expect(tmp_path / "f", r"1 image\(s\) .* missing, e.g. \['t01_y1_x2.png'\]")
+
+
+def test_manifest_says_fewer_frames_than_files(tmp_path):
+    _make(tmp_path / "f", T=3)
+    m = json.loads((tmp_path / "f" / "grid.json").read_text())
+    m["frames"] = 2
+    (tmp_path / "f" / "grid.json").write_text(json.dumps(m))
+    _expect(tmp_path / "f", r"outside the manifest's grid 3x3 x 2 frames, e.g. \['t02_y0_x0.png'")
+
+
+def test_manifest_says_more_cameras_than_files(tmp_path):
+    _make(tmp_path / "f", grid=[3, 5], reference_camera=[1, 2])
+    _expect(tmp_path / "f", r"18 image\(s\) .* missing")
+
+
+def test_mixed_sizes(tmp_path):
+    _make(tmp_path / "f")
+    iio.imwrite(tmp_path / "f" / "t02_y2_x2.png", np.zeros((12, 11), np.uint16))
+    _expect(tmp_path / "f", r"t02_y2_x2.png: size \(12, 11\) differs")
+
+
+def test_mixed_bit_depths(tmp_path):
+    _make(tmp_path / "f")
+    iio.imwrite(tmp_path / "f" / "t01_y0_x0.png", np.zeros((12, 10), np.uint8))
+    _expect(tmp_path / "f", r"t01_y0_x0.png: pixel type uint8 differs .* \(uint16\)")
+
+
+def test_unreadable_image(tmp_path):
+    _make(tmp_path / "f")
+    (tmp_path / "f" / "t00_y1_x1.png").write_bytes(b"not a png")
+    _expect(tmp_path / "f", r"t00_y1_x1.png: unreadable image")
+
+
+@pytest.mark.parametrize("content, match", [
+    ("{not json", "not valid JSON"),
+    ('{"focal_length": 1}', "missing key"),
+    ('{"focal_length": 1, "camera_spacing": [1, 1], "grid": [3, 3], "frames": 2, '
+     '"pattern": "img{t}.png"}', "must use the fields"),
+    ('{"focal_length": -1, "camera_spacing": [1, 1], "grid": [3, 3], "frames": 2, '
+     '"pattern": "{t}{sy}{sx}.png"}', "out of range"),
+])
+def test_bad_manifest(tmp_path, content, match):
+    (tmp_path / "grid.json").write_text(content)
+    _expect(tmp_path, match)
+
+
+def test_no_manifest_and_not_a_folder(tmp_path):
+    _expect(tmp_path, "no grid.json")
+    _expect(tmp_path / "absent", "not a folder")
+
+
+def test_reference_camera_must_be_centre(tmp_path):
+    _make(tmp_path / "f", reference_camera=[0, 0])
+    _expect(tmp_path / "f", "not the centre camera")
+
+
+def test_truth_of_wrong_shape(tmp_path):
+    _make(tmp_path / "f", truth={"Z": "Z.npy"})
+    np.save(tmp_path / "f" / "Z.npy", np.zeros((3, 3)))
+    _expect(tmp_path / "f", r"Z.npy: truth map has shape \(3, 3\)")

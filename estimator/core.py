@@ -98,7 +98,7 @@ def _check_volume(volume) -> np.ndarray:
             f"volume must be float32 or float64, got {volume.dtype}; convert integer "
             "images with volume.astype(np.float64) (intensities must be linear)")
     # frame by frame: a whole-volume boolean mask would cost a quarter of the volume
-    count, first = 0, None
+    count, first, amax = 0, None, 0.0
     for k in range(volume.shape[0]):
         bad = ~np.isfinite(volume[k])
         nbad = int(np.count_nonzero(bad))
@@ -106,10 +106,23 @@ def _check_volume(volume) -> np.ndarray:
             count += nbad
             if first is None:
                 first = (k,) + tuple(int(i) for i in np.argwhere(bad)[0])
+        elif volume[k].size:
+            amax = max(amax, float(np.max(np.abs(volume[k]))))
     if count:
         raise InputError(f"volume has {count} non-finite values (NaN or inf); "
                          f"first at index (t, sy, sx, y, x) = {first}")
-    return volume
+    if volume.size == 0:
+        raise InputError(f"volume is empty (shape {volume.shape})")
+    return volume, amax
+
+
+def _unit_scale(amax: float) -> float:
+    """Power of two bringing max|V| near 1.  Estimates do not depend on the volume's scale
+    (J scales by c^2); rescaling keeps the products in J clear of overflow (|V| ~ 1e200)
+    and underflow (|V| ~ 1e-300).  A power of two is exact in binary floating point."""
+    if amax == 0.0 or not np.isfinite(amax):
+        return 1.0
+    return float(2.0 ** -np.round(np.log2(amax)))
 
 
 def _axis_pair(name: str, samples: int, axis: str) -> FilterPair:
@@ -124,7 +137,7 @@ def _axis_pair(name: str, samples: int, axis: str) -> FilterPair:
 
 def _prepare(volume, focal_length, camera_spacing, principal_point, s: EstimatorSettings,
              models: tuple[str, ...]):
-    volume = _check_volume(volume)
+    volume, amax = _check_volume(volume)
     T, Sy, Sx, H, W = volume.shape
     for m in models:
         if m not in MODELS:
@@ -180,7 +193,7 @@ def _prepare(volume, focal_length, camera_spacing, principal_point, s: Estimator
                          f"{spatial.taps}-tap filters: need more than {2 * halo} pixels "
                          "per side")
     grid_dims = 2 if Sy > 1 else 1
-    return dict(volume=volume, f=f, spacing=(sp[0], sp[1] if Sy > 1 else 0.0), cx=cx, cy=cy,
+    return dict(volume=volume, scale=_unit_scale(amax), f=f, spacing=(sp[0], sp[1] if Sy > 1 else 0.0), cx=cx, cy=cy,
                 spatial=spatial, cam_x=cam_x, cam_y=cam_y, time=time, k_ref=k_ref, R_t=R_t,
                 halo=halo, grid_dims=grid_dims)
 
@@ -263,7 +276,8 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     for r0 in range(halo, H - halo, band):
         r1 = min(r0 + band, H - halo)
         rows_in = slice(r0 - halo, r1 + halo)
-        ct = camera_time_signals(vol, frames, c["cam_x"], c["cam_y"], c["time"], rows_in)
+        ct = camera_time_signals(vol, frames, c["cam_x"], c["cam_y"], c["time"], rows_in,
+                                 scale=c["scale"])
         sig = spatial_signals(ct, c["spatial"])
         del ct
         # J covers rows r0 - spatial.radius .. r1 + spatial.radius; keep the band
@@ -287,7 +301,11 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
                 P, g, err, valid = solver(Jf[:, sub[m][:, None], sub[m][None, :]], mdl[m])
             res = disentangle(P, g, mdl[m], x0, y0, c["f"], c["spacing"],
                               slant_correction=s.slant_correction)
-            res["model_error"] = np.where(valid, err, np.nan)
+            # an eigenvalue of J: undo the internal rescaling (J scales with its square).
+            # For |V| beyond ~1e154 the true value is not representable: it becomes inf.
+            inv = 1.0 / c["scale"]
+            with np.errstate(over="ignore", under="ignore"):
+                res["model_error"] = (np.where(valid, err, np.nan) * inv) * inv
             for name, val in res.items():
                 out[m][name][r0:r1, halo:W - halo] = val.reshape(r1 - r0, cols.size)
     used = dict(s.__dict__, filters_xy=c["spatial"].name, filters_sx=c["cam_x"].name,

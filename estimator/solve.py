@@ -74,10 +74,13 @@ def null_space(J: np.ndarray, model: Model):
     n = model.n
     fixed = [model.index(r) for r in model.fixed_rows]
     q = np.array([i for i in range(n) if i not in fixed])
+    tr = np.trace(J, axis1=-2, axis2=-1)
+    finite = np.isfinite(J).all(axis=(-2, -1))
+    if not finite.all():                     # LAPACK must not see inf/NaN
+        J = np.where(finite[:, None, None], J, np.eye(n))
     lam, V = np.linalg.eigh(J)
     E = V[..., :k]
-    tr = np.trace(J, axis1=-2, axis2=-1)
-    valid = np.isfinite(tr) & (tr > 0) & (lam[..., k] > RANK_TOL * tr)
+    valid = finite & np.isfinite(tr) & (tr > 0) & (lam[..., k] > RANK_TOL * tr)
     M = E[:, fixed, :]                                   # (N, k, k)
     smin = np.linalg.svd(M, compute_uv=False)[..., -1]
     valid &= smin > M_TOL

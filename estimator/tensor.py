@@ -36,7 +36,7 @@ def _taps(kernel: np.ndarray, centre: int):
 
 def camera_time_signals(volume: np.ndarray, frames: np.ndarray, cam_x: FilterPair,
                         cam_y: FilterPair | None, time: FilterPair,
-                        rows: slice = slice(None)) -> dict[str, np.ndarray]:
+                        rows: slice = slice(None), scale: float = 1.0) -> dict[str, np.ndarray]:
     """Filter the camera and time axes at the reference camera.
 
     Parameters
@@ -51,6 +51,8 @@ def camera_time_signals(volume: np.ndarray, frames: np.ndarray, cam_x: FilterPai
     rows : slice
         Image rows to process (a band); only views of the volume are taken, so memory
         grows with the band, not the volume.
+    scale : float
+        Factor applied to the intensities (folded into the camera weights).
 
     Returns
     -------
@@ -77,9 +79,9 @@ def camera_time_signals(volume: np.ndarray, frames: np.ndarray, cam_x: FilterPai
                 w[iy.index(i), ix.index(j)] = wy * wx
         return w
 
-    combos = {"pp": weights(ys, xs), "dp": weights(ys, xd)}
+    combos = {"pp": scale * weights(ys, xs), "dp": scale * weights(ys, xd)}
     if cam_y is not None:
-        combos["pd"] = weights(yd, xs)
+        combos["pd"] = scale * weights(yd, xs)
     cams: dict[str, dict[int, np.ndarray]] = {key: {} for key in combos}
     ysl = slice(iy[0], iy[-1] + 1)
     xsl = slice(ix[0], ix[-1] + 1)

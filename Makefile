@@ -65,6 +65,9 @@ results/claims.csv: $(SWEEP_CSV) gridflow/claims.py gridflow/cli.py | $(STAMP)
 	$(BIN)/gridflow claims $< --write-csv $@ --write-doc docs/reproduction.md
 
 # Regenerate the stored error curves on purpose (the tests compare fresh runs with them).
+bench: $(STAMP)
+	$(PY) -m bench.throughput
+
 baseline: $(STAMP)
 	$(BIN)/gridflow sweep bench/sweeps/paper.toml -o $(SWEEP_CSV)
 	$(BIN)/gridflow claims $(SWEEP_CSV) --write-csv results/claims.csv --write-doc docs/reproduction.md

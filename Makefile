@@ -10,7 +10,7 @@ PY     := $(BIN)/python
 STAMP  := $(VENV)/.installed
 
 .DEFAULT_GOAL := help
-.PHONY: help env test figures reproduce baseline bench clean distclean
+.PHONY: help env test figures reproduce baseline bench clean distclean povray
 
 help:
 	@echo "make figures   reproduce the paper's figures and result tables (results/)"
@@ -58,8 +58,15 @@ $(FIGDIR)/fig2.png: gridflow/figures.py generators/sinusoid.py gridflow/cli.py |
 	$(BIN)/gridflow figures --fig2 --out $(FIGDIR)
 
 # The cube: rendered with POV-Ray into work/cube/ (cached, not committed), then estimated.
-$(FIGDIR)/fig1.png results/cube.csv &: $(CUBE_SRC) | $(STAMP)
+$(FIGDIR)/fig1.png results/cube.csv &: $(CUBE_SRC) | $(STAMP) povray
 	$(BIN)/gridflow cube --csv results/cube.csv --fig-dir $(FIGDIR)
+
+# POV-Ray (Debian's povray) is installed where missing.
+povray:
+	@command -v povray >/dev/null 2>&1 || { \
+	  echo "installing POV-Ray (apt-get install povray)"; \
+	  SUDO=""; [ "$$(id -u)" = 0 ] || SUDO=sudo; \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq povray >/dev/null; }
 
 results/claims.csv: $(SWEEP_CSV) gridflow/claims.py gridflow/cli.py | $(STAMP)
 	$(BIN)/gridflow claims $< --write-csv $@ --write-doc docs/reproduction.md

@@ -149,12 +149,13 @@ def cmd_sweep(a) -> int:
           file=sys.stderr)
     t0 = time.perf_counter()
     client = None
-    if a.scheduler or (a.workers and a.dask):
+    if a.scheduler or a.workers:
         from .distributed import make_client
 
         client = make_client(a.scheduler, a.workers)
+        print(f"dask: {len(client.scheduler_info()['workers'])} workers", file=sys.stderr)
     try:
-        df = run_sweep(spec, a.output, workers=a.workers, progress=not a.no_progress,
+        df = run_sweep(spec, a.output, workers=a.processes, progress=not a.no_progress,
                        executor=client)
     finally:
         if client is not None:
@@ -276,10 +277,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--models", nargs="+", help="models (default: all three)")
     p.add_argument("--noise", type=float, nargs="+", help="noise levels sigma_n")
     p.add_argument("--seeds", type=int, nargs="+", help="noise seeds")
+    p.add_argument("--processes", type=int, default=None,
+                   help="size of the default in-process pool (default: all cores)")
     p.add_argument("--workers", type=int, default=None,
-                   help="processes on this machine (default: all cores)")
-    p.add_argument("--dask", action="store_true",
-                   help="with --workers N: run on a local dask.distributed cluster of N workers")
+                   help="start a local dask.distributed cluster of N single-threaded workers")
     p.add_argument("--scheduler", help="address of a running dask scheduler (tcp://HOST:PORT)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_sweep)

@@ -1,8 +1,8 @@
 """Running sweep points on dask.distributed (edge: cluster set-up).
 
 ``gridflow sweep ... --scheduler tcp://HOST:PORT`` sends the points to an existing cluster
-(every worker needs gridflow installed, the same version); ``--dask --workers N`` starts a
-local cluster of N single-threaded worker processes.  Without either, sweeps run in a
+(every worker needs gridflow installed, the same version); ``--workers N`` starts a local
+cluster of N single-threaded worker processes.  Without either, sweeps run in a
 local process pool and need no server.  Each point is seeded by its own parameters, so
 the CSV is the same whichever executor ran it.
 """

@@ -36,7 +36,7 @@ def _parts(out: Path):
 
 def _run(spec, out):
     return subprocess.Popen([sys.executable, "-m", "gridflow.cli", "sweep", str(spec), "-o",
-                             str(out), "--workers", "1", "--no-progress"], cwd=ROOT,
+                             str(out), "--processes", "1", "--no-progress"], cwd=ROOT,
                             start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
 

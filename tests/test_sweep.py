@@ -102,7 +102,7 @@ def test_interrupted_sweep_leaves_no_csv_and_resumes(tmp_path, monkeypatch):
 def test_cli_sweep_with_flags(tmp_path, capsys):
     out = tmp_path / "s.csv"
     assert main(["sweep", "--param", "a1", "--values", "0", "0.2", "--models", "hf",
-                 "--no-progress", "-o", str(out), "--workers", "1"]) == 0
+                 "--no-progress", "-o", str(out), "--processes", "1"]) == 0
     df = pd.read_csv(out)
     assert set(df.model) == {"hf"} and sorted(set(df.value)) == [0.0, 0.2]
     assert main(["sweep", "--param", "a9", "--values", "1", "-o", str(out)]) == 2

@@ -190,7 +190,7 @@ def _iterate(A, tr, X, L, Y, AY, H, Vh, th, y, b, k, max_iter):
     On entry L must hold the Cholesky factor of ``A + δI``.  Convergence is judged on the
     k-th vector, the slowest of the null space (rate θ_k / θ_{k+2})."""
     n, m = X.shape
-    for it in range(max_iter):
+    for _ in range(max_iter):
         for j in range(m):
             for r in range(n):
                 b[r] = X[r, j]

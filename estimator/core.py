@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .filters import FilterPair, get_filter_pair
-from .models import MODELS, Model, get_model
+from .models import MODELS, get_model
 from .solve import disentangle, null_space
 from .tensor import (camera_time_signals, gaussian_moment_kernels, spatial_signals,
                      structure_tensor, structure_tensor_reference)

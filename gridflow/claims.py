@@ -178,7 +178,7 @@ def obs9(df) -> Result:
     curves = {p: [_curve(df, m, "Uz", p, measure="q_rel") for m in ("bcc", "hf", "full")]
               for p in ("a2", "a2x")}
     agree = []
-    for p, cs in curves.items():
+    for cs in curves.values():
         first = [c.iloc[1] for c in cs]
         agree.append(max(first) <= 2 * min(first))
     lin = [0.8 <= _slope(curves[p][2][np.abs(curves[p][2].index) <= lim]) <= 1.2

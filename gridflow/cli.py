@@ -200,7 +200,7 @@ def cmd_figures(a) -> int:
 def cmd_claims(a) -> int:
     import pandas as pd
 
-    from .claims import check_claims, render_markdown, write_claims
+    from .claims import check_claims, write_claims
 
     df = pd.read_csv(a.csv)
     table = check_claims(df)

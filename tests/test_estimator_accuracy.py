@@ -5,7 +5,6 @@ measured when this was written are in the comments and in docs/reproduction.md, 
 margin each bound leaves is visible.
 """
 
-import numpy as np
 import pytest
 
 SLANTED = dict(Z_X=0.3, Z_Y=-0.2, U_X=0.05, U_Y=0.05, U_Z=0.1)

@@ -6,7 +6,6 @@ from collections import Counter
 from datetime import timedelta
 
 import numpy as np
-import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 

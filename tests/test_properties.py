@@ -6,6 +6,7 @@ from collections import Counter
 from datetime import timedelta
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -18,6 +19,16 @@ TRIED = Counter()     # reported by conftest.pytest_terminal_summary
 # A deadline per example is the hang check; it is generous because the machine is shared.
 COMMON = dict(deadline=timedelta(seconds=20), derandomize=True,
               suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _compiled():
+    """Compile the numba kernels before any example runs: the first call compiles for
+    ~20 s on a fresh checkout, which must not count against the per-example deadline."""
+    sv = make_sinusoid(height=24, width=24, frames=5, grid=(3, 3))
+    estimate(sv.volume, sv.focal_length, sv.camera_spacing, sigma=2.0, window=7)
+
 
 nasty_float = st.one_of(st.floats(allow_nan=True, allow_infinity=True),
                         st.floats(-1e3, 1e3), st.just(0.0))

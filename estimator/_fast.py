@@ -60,7 +60,7 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
     ndarray, shape (n (n + 1) / 2, h - 2 halo, ncols), float64
         Entry (a, b) is plane ``packed_index(n)[a, b]``.
     """
-    from .tensor import _entry_keys
+    from .tensor import _entry_groups
 
     n = len(rows)
     F, h, W = next(iter(signals.values())).shape
@@ -76,14 +76,11 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
     KY = sfft.fft(ky, axis=1)
     K2 = {}
     idx = packed_index(n)
-    groups: dict[tuple, list] = {}
-    for key in _entry_keys(rows):
-        groups.setdefault((key[2], key[3]), []).append(key)
     out_rows = h - 2 * halo
     c0, c1, _ = cols.indices(W)
     Jp = np.empty((n * (n + 1) // 2, out_rows, c1 - c0))
     workers = workers or -1
-    for (pair, tpow), entries in groups.items():
+    for (pair, tpow), entries in _entry_groups(rows).items():
         coef = wt * tvals.astype(float) ** tpow
         prod = np.einsum("f,fhw,fhw->hw", coef, signals[pair[0]], signals[pair[1]])
         FP = sfft.rfft2(prod, s=shape, workers=workers)

@@ -68,8 +68,7 @@ def camera_time_signals(volume: np.ndarray, frames: np.ndarray, cam_x: FilterPai
     needed = sorted({int(k) + o for k in frames for o in range(-time.radius, time.radius + 1)})
     # Camera axes first, per frame: one weighted sum over the grid's (sy, sx) taps, so
     # every array below is (h, W) or (F, h, W) and only views of the volume are read.
-    iy = [i for i, _ in ys] if cam_y is None else [i for i, _ in _taps(cam_y.prefilter, ic)]
-    iy = sorted(set(iy) | {i for i, _ in yd})
+    iy = sorted({i for i, _ in ys} | {i for i, _ in yd})
     ix = sorted({j for j, _ in xs} | {j for j, _ in xd})
 
     def weights(ytaps, xtaps):
@@ -168,6 +167,14 @@ def _entry_keys(rows: tuple[str, ...]):
     return keys
 
 
+def _entry_groups(rows: tuple[str, ...]) -> dict[tuple, list]:
+    """Upper-triangle entries grouped by the (signal pair, t-power) product they share."""
+    groups: dict[tuple, list] = {}
+    for key in _entry_keys(rows):
+        groups.setdefault((key[2], key[3]), []).append(key)
+    return groups
+
+
 def _smooth(img: np.ndarray, kx: np.ndarray, ky: np.ndarray, halo: int) -> np.ndarray:
     out = correlate1d(img, kx, axis=-1, mode="constant")
     out = correlate1d(out, ky, axis=-2, mode="constant")
@@ -199,10 +206,7 @@ def structure_tensor(signals: dict[str, np.ndarray], tvals: np.ndarray, rows: tu
     F, h, W = next(iter(signals.values())).shape
     wt = np.full(F, 1.0 / F)
     J = np.empty((h - 2 * halo, W, n, n))
-    groups: dict[tuple, list] = {}
-    for key in _entry_keys(rows):
-        groups.setdefault((key[2], key[3]), []).append(key)
-    for (pair, tpow), entries in groups.items():
+    for (pair, tpow), entries in _entry_groups(rows).items():
         coef = wt * tvals.astype(float) ** tpow
         prod = np.einsum("f,fhw,fhw->hw", coef, signals[pair[0]], signals[pair[1]])
         xpass: dict[int, np.ndarray] = {}

@@ -123,27 +123,18 @@ def cmd_sweep(a) -> int:
 
     if a.spec:
         spec = SweepSpec.from_toml(a.spec)
-        raw = None
     else:
-        raw = {"sweep": {"name": a.name}, "axis": []}
+        from estimator import MODELS
+
+        spec = SweepSpec(name=a.name, models=list(MODELS), noise=[0.0], seeds=[0])
     if a.param or a.values:
         if not (a.param and a.values):
             raise SpecError("--param and --values go together")
-        axes = [{"param": a.param, "values": a.values}]
-        if raw is None:
-            spec.axes = [(a.param, a.values)]
-        else:
-            raw["axis"] = axes
-    if raw is not None:
-        for key in ("models", "noise", "seeds"):
-            if getattr(a, key) is not None:
-                raw["sweep"][key] = getattr(a, key)
-        spec = SweepSpec.from_dict(raw, source="command line")
-    else:
-        for key in ("models", "noise", "seeds"):
-            if getattr(a, key) is not None:
-                setattr(spec, key, getattr(a, key))
-        spec.validate(a.spec)
+        spec.axes = [(a.param, a.values)]
+    for key in ("models", "noise", "seeds"):
+        if getattr(a, key) is not None:
+            setattr(spec, key, getattr(a, key))
+    spec.validate(a.spec or "command line")
     n = len(spec.points())
     print(f"sweep {spec.name}: {n} points x {len(spec.models)} models -> {a.output}",
           file=sys.stderr)

@@ -12,11 +12,11 @@ import numpy as np
 import pandas as pd
 
 from estimator import estimate_models
-from scenes import FACE_NAMES
+from scenes import FACE_NAMES, face_interior
 
 from .metrics import q_abs, q_rel
 
-__all__ = ["run_cube", "cube_table", "fig1", "observation11"]
+__all__ = ["run_cube", "cube_table", "fig1", "observation11", "face_interior"]
 
 COLUMNS = ["face", "model", "n_pixels", "n_valid", "q_rel_Uz", "q_abs_Ux", "q_abs_Uy",
            "q_rel_Z", "q_abs_Zx", "q_abs_Zy", "median_model_error", "median_rel_Uz",
@@ -30,19 +30,6 @@ def run_cube(data, **settings):
         settings["ref_frame"] = ref
     return estimate_models(data.volume, data.focal_length, data.camera_spacing,
                            principal_point=data.principal_point, **settings)
-
-
-def face_interior(face: np.ndarray, margin: float) -> np.ndarray:
-    """Pixels of the visible faces at least ``margin`` pixels from another face or the
-    background."""
-    from scipy.ndimage import distance_transform_edt
-
-    inner = np.zeros(face.shape, dtype=bool)
-    for fid in FACE_NAMES:
-        m = face == fid
-        if m.any():
-            inner |= m & (distance_transform_edt(m) >= margin)
-    return inner
 
 
 def cube_table(data, results, margin: float | None = None) -> pd.DataFrame:

@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["CubeScene", "scene_sdl", "cube_truth", "FACE_NAMES"]
+__all__ = ["CubeScene", "scene_sdl", "cube_truth", "face_interior", "FACE_NAMES"]
 
 FACE_NAMES = {1: "left", 2: "right"}
 
@@ -162,6 +162,30 @@ def scene_sdl(scene: CubeScene, k: int, i: int, j: int) -> str:
     return "#version 3.7;\n" + str(sdl)
 
 
+def face_interior(face: np.ndarray, margin: float) -> np.ndarray:
+    """Pixels of the visible faces at least ``margin`` pixels from another face or the
+    background.
+
+    Parameters
+    ----------
+    face : ndarray of int, shape (H, W)
+        Face ids (:data:`FACE_NAMES`; 0 background).
+    margin : float
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+    """
+    from scipy.ndimage import distance_transform_edt
+
+    inner = np.zeros(face.shape, dtype=bool)
+    for fid in FACE_NAMES:
+        m = face == fid
+        if m.any():
+            inner |= m & (distance_transform_edt(m) >= margin)
+    return inner
+
+
 def cube_truth(scene: CubeScene, margin: float = 16.0) -> dict[str, np.ndarray]:
     """Ground truth at the reference camera and frame by ray casting the known cube.
 
@@ -177,8 +201,6 @@ def cube_truth(scene: CubeScene, margin: float = 16.0) -> dict[str, np.ndarray]:
         ``Z, Zx, Zy, Ux, Uy, Uz`` (NaN off the cube), ``face`` (0 background, 1 left,
         2 right, 3 other faces), ``interior`` (bool).
     """
-    from scipy.ndimage import distance_transform_edt
-
     H, W = scene.height, scene.width
     x = np.arange(W) - (W - 1) / 2
     y = np.arange(H) - (H - 1) / 2
@@ -208,11 +230,7 @@ def cube_truth(scene: CubeScene, margin: float = 16.0) -> dict[str, np.ndarray]:
     face[hit] = 3
     face[hit & (np.abs(Zy) < 1e-9) & (Zx < 0)] = 1
     face[hit & (np.abs(Zy) < 1e-9) & (Zx > 0)] = 2
-    interior = np.zeros((H, W), dtype=bool)
-    for fid in FACE_NAMES:
-        m = face == fid
-        if m.any():
-            interior |= m & (distance_transform_edt(m) >= margin)
+    interior = face_interior(face, margin)
     nan_off = lambda v: np.where(hit, v, np.nan)  # noqa: E731
     return {"Z": Z, "Zx": Zx, "Zy": Zy, "Ux": nan_off(0.0 * Z), "Uy": nan_off(0.0 * Z),
             "Uz": nan_off(np.full((H, W), scene.uz)), "face": face, "interior": interior}

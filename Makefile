@@ -21,25 +21,35 @@ help:
 	@echo "make clean     remove caches (never results of long runs)"
 
 $(STAMP): pyproject.toml requirements.lock
-	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -r requirements.lock
-	$(PY) -m pip install -q --no-deps --no-build-isolation -e .
-	touch $@
+	@echo "setting up $(VENV): the pinned dependencies of requirements.lock and gridflow (once; 1-2 min) ..."
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	@$(PY) -m pip install -q --upgrade pip
+	@$(PY) -m pip install -q -r requirements.lock
+	@$(PY) -m pip install -q --no-deps --no-build-isolation -e .
+	@touch $@
+	@echo "$(VENV) is ready"
 
-env: $(STAMP)
+# numba compiles the estimator's kernels on first use (20-40 s) and caches them on disk;
+# paying that here, with a message, keeps the first estimate from a long silence.
+KERNELS := $(VENV)/.kernels
+$(KERNELS): estimator/_fast.py | $(STAMP)
+	@$(PY) -c "import logging; logging.basicConfig(level=logging.INFO, format='gridflow: %(message)s'); \
+	  from gridflow.estimator._fast import compile_kernels; compile_kernels()"
+	@touch $@
+
+env: $(STAMP) $(KERNELS)
 
 # --- results and figures -----------------------------------------------------------------
-NUMERICS  := $(wildcard estimator/*.py generators/*.py) gridflow/metrics.py gridflow/sweep.py \
-             gridflow/cli.py
+NUMERICS  := $(wildcard estimator/*.py generators/*.py) bench/metrics.py bench/sweep.py \
+             bench/cli.py
 SWEEP_CSV := results/sweep_paper.csv
 FIGDIR    := results/figures
 FIGS      := $(FIGDIR)/fig1.png $(FIGDIR)/fig2.png $(FIGDIR)/fig3.png $(FIGDIR)/fig4.png
 OUTPUTS   := $(FIGS) results/claims.csv results/cube.csv
-CUBE_SRC  := $(wildcard estimator/*.py scenes/*.py) gridflow/render.py gridflow/loader.py \
-             gridflow/cube.py gridflow/figures.py gridflow/metrics.py gridflow/cli.py
+CUBE_SRC  := $(wildcard estimator/*.py scenes/*.py) gridflow/loader.py bench/cube.py \
+             bench/figures.py bench/metrics.py bench/cli.py
 
-figures: $(STAMP)
+figures: $(STAMP) $(KERNELS)
 	@t0=$$(date +%s); $(MAKE) --no-print-directory $(OUTPUTS) && \
 	  echo "make figures: up to date after $$(( $$(date +%s) - t0 )) s"
 
@@ -51,35 +61,38 @@ reproduce: $(STAMP)
 $(SWEEP_CSV): bench/sweeps/paper.toml $(NUMERICS) | $(STAMP)
 	$(BIN)/gridflow sweep $< -o $@
 
-$(FIGDIR)/fig3.png $(FIGDIR)/fig4.png &: $(SWEEP_CSV) gridflow/figures.py gridflow/cli.py | $(STAMP)
+$(FIGDIR)/fig3.png $(FIGDIR)/fig4.png &: $(SWEEP_CSV) bench/figures.py bench/cli.py | $(STAMP)
 	$(BIN)/gridflow figures --sweep $< --out $(FIGDIR)
 
-$(FIGDIR)/fig2.png: gridflow/figures.py generators/sinusoid.py gridflow/cli.py | $(STAMP)
+$(FIGDIR)/fig2.png: bench/figures.py generators/sinusoid.py bench/cli.py | $(STAMP)
 	$(BIN)/gridflow figures --fig2 --out $(FIGDIR)
 
 # The cube: rendered with POV-Ray into work/cube/ (cached, not committed), then estimated.
 $(FIGDIR)/fig1.png results/cube.csv &: $(CUBE_SRC) | $(STAMP) povray
 	$(BIN)/gridflow cube --csv results/cube.csv --fig-dir $(FIGDIR)
 
-# POV-Ray (Debian's povray) is installed where missing.
+# POV-Ray (Debian's povray) renders the cube; installed where missing, or one line says how.
 povray:
 	@command -v povray >/dev/null 2>&1 || { \
-	  echo "installing POV-Ray (apt-get install povray)"; \
-	  SUDO=""; [ "$$(id -u)" = 0 ] || SUDO=sudo; \
-	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq povray >/dev/null; }
+	  if [ "$$(id -u)" = 0 ]; then SUDO=""; elif sudo -n true 2>/dev/null; then SUDO="sudo -n"; \
+	  else echo "POV-Ray is missing and installing it needs root: run 'sudo apt-get install povray', then make again" >&2; exit 1; fi; \
+	  command -v apt-get >/dev/null 2>&1 || { echo "POV-Ray is missing: install it with your system's package manager (Debian/Ubuntu: apt-get install povray), then make again" >&2; exit 1; }; \
+	  echo "installing POV-Ray (apt-get install povray; once) ..."; \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq povray >/dev/null && \
+	  echo "POV-Ray installed"; }
 
-results/claims.csv: $(SWEEP_CSV) gridflow/claims.py gridflow/cli.py | $(STAMP)
+results/claims.csv: $(SWEEP_CSV) bench/claims.py bench/cli.py | $(STAMP)
 	$(BIN)/gridflow claims $< --write-csv $@ --write-doc docs/reproduction.md
 
 # Regenerate the stored error curves on purpose (the tests compare fresh runs with them).
-bench: $(STAMP)
-	$(PY) -m bench.throughput
+bench: $(STAMP) $(KERNELS)
+	$(PY) -m gridflow.bench.throughput
 
 baseline: $(STAMP)
-	$(BIN)/gridflow sweep bench/sweeps/paper.toml -o $(SWEEP_CSV)
+	$(BIN)/gridflow sweep paper -o $(SWEEP_CSV)
 	$(BIN)/gridflow claims $(SWEEP_CSV) --write-csv results/claims.csv --write-doc docs/reproduction.md
 
-test: $(STAMP)
+test: $(STAMP) $(KERNELS) povray
 	$(PY) -m pytest
 
 clean:

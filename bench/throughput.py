@@ -1,8 +1,7 @@
 """Throughput benchmark: the fast estimator against the straightforward baseline.
 
-    python -m bench.throughput                  # 512x512, three models, + scaling table
-    python -m bench.throughput --sizes 256 512  # a shorter scaling table
-    python -m bench.throughput --gpu            # also the GPU backend, if CuPy and a GPU exist
+    python -m gridflow.bench.throughput                  # 512x512, three models, + scaling table
+    python -m gridflow.bench.throughput --sizes 256 512  # a shorter scaling table
 
 The baseline is ``estimate(..., method="reference")``: the structure tensor entry by entry
 with separable 65-tap Gaussian correlations (scipy.ndimage), then ``numpy.linalg.eigh`` on
@@ -25,8 +24,8 @@ import tracemalloc
 
 import numpy as np
 
-from estimator import estimate
-from generators import make_sinusoid
+from gridflow.estimator import estimate
+from gridflow.generators import make_sinusoid
 
 
 def _volume(size: int, dtype=np.float64):
@@ -102,7 +101,7 @@ def _one_size(size: int) -> dict:
 def scaling(sizes) -> list[dict]:
     out = []
     for size in sizes:
-        res = subprocess.run([sys.executable, "-m", "bench.throughput", "--_one", str(size)],
+        res = subprocess.run([sys.executable, "-m", "gridflow.bench.throughput", "--_one", str(size)],
                              capture_output=True, text=True, check=True,
                              env={**os.environ, "PYTHONWARNINGS": "ignore"})
         out.append(json.loads(res.stdout.strip().splitlines()[-1]))

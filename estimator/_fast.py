@@ -24,18 +24,64 @@ Null space (:func:`null_space_fast`)
 
 from __future__ import annotations
 
+import logging
+import os
+from pathlib import Path
+
 import numpy as np
 import scipy.fft as sfft
 from numba import njit, prange
 
 from .models import Model
 
-__all__ = ["structure_tensor_fft", "null_space_fast", "packed_index", "MAX_ITER"]
+__all__ = ["structure_tensor_fft", "null_space_fast", "packed_index", "MAX_ITER",
+           "announce_compilation", "compile_kernels"]
+
+_log = logging.getLogger("gridflow.estimator")
+_announced = False
+
+
+def _kernels_cached() -> bool:
+    """Whether numba's on-disk cache (``cache=True``) already holds this module's kernels,
+    newer than the source: if not, the first call compiles them (20-40 s)."""
+    src = Path(__file__)
+    folders = [src.parent / "__pycache__"]
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        folders.append(Path(os.environ["NUMBA_CACHE_DIR"]))
+    mtime = src.stat().st_mtime
+    found = [f for d in folders for f in d.rglob(f"{src.stem}.*.nbi")
+             if f.stat().st_mtime >= mtime] if any(d.is_dir() for d in folders) else []
+    return len({f.name for f in found}) >= _N_KERNELS
+
+
+def compile_kernels() -> None:
+    """Compile (or load from numba's cache) every kernel by estimating a tiny random volume.
+
+    Lets an installation pay the one-off compilation up front (``make`` does) instead of in
+    the first real estimate.
+    """
+    from .core import estimate
+
+    rng = np.random.default_rng(0)
+    volume = rng.random((5, 3, 3, 24, 24))
+    estimate(volume, 100.0, (0.05, 0.05), model="full", sigma=2.0, window=9)
+
+
+def announce_compilation() -> None:
+    """Log (once per process, INFO on the ``gridflow`` logger) that the kernels are being
+    compiled when numba's cache does not hold them yet, so a long first call is not silent."""
+    global _announced
+    if not _announced:
+        _announced = True
+        if not _kernels_cached():
+            _log.info("compiling the estimator's numba kernels (once per installation, "
+                      "20-40 s) ...")
 
 MAX_ITER = 8
 _SHIFT = 1e-13
 _CONV = 1e-13
 _CHUNKS = 256
+_N_KERNELS = 5          # functions compiled with cache=True below
 
 
 def packed_index(n: int) -> np.ndarray:

@@ -260,8 +260,10 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     # ~512 MB, so memory does not grow with the image.
     band = s.band_rows or max(16, int(512e6 // (W * n * n * 8)))
     if s.method == "fast":
-        from ._fast import null_space_fast, packed_index, structure_tensor_fft
+        from ._fast import (announce_compilation, null_space_fast, packed_index,
+                            structure_tensor_fft)
 
+        announce_compilation()
         tensor = structure_tensor_fft
         pidx = packed_index(n)
     else:

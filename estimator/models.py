@@ -1,4 +1,4 @@
-"""Data vector d and parameter vector p of Eq. 19 (reconstructed in model.md).
+"""Data vector d and parameter vector p of Eq. 19 (rebuilt in docs/model.md).
 
 Each data row is a base signal times a temporal power and a spatial monomial:
 

@@ -12,7 +12,7 @@ Each pixel of each camera is rendered by intersecting its ray with the plane at 
 time; nothing of the estimator's linearisation (Eq. 15-17) is used, so the estimator's
 approximations are tested, not reproduced.
 
-Conventions (``shared/design/model.md``): volume ``V[t, sy, sx, y, x]``, right-handed
+Conventions (``docs/model.md``): volume ``V[t, sy, sx, y, x]``, right-handed
 camera frame with X right, Y down, Z forward; pixel coordinates relative to the principal
 point (the image centre); cameras at ``s = ((j - (Sx-1)/2) ds_x, (i - (Sy-1)/2) ds_y, 0)``;
 time ``t = (k - k_ref) * frame_interval`` with ``k_ref`` the centre frame.

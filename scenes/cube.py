@@ -1,6 +1,6 @@
 """The textured cube of Sec. 4.2: scene description (POV-Ray SDL via vapory) and its
 analytic ground truth.  Pure functions of :class:`CubeScene`; rendering (files, the
-``povray`` process) lives in :mod:`gridflow.render`.
+``povray`` process) lives in :mod:`gridflow.scenes.render`.
 
 Frames.  gridflow's model frame is right-handed, X right, Y down, Z forward.  POV-Ray's is
 left-handed, X right, Y up, Z forward: the same space with Y flipped, so a model point

@@ -8,9 +8,9 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
-from estimator import estimate_models
-from generators import make_sinusoid
-from gridflow.metrics import evaluate
+from gridflow.estimator import estimate_models
+from gridflow.generators import make_sinusoid
+from gridflow.bench.metrics import evaluate
 
 
 def _key(kw: dict) -> tuple:

@@ -17,8 +17,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gridflow.claims import check_claims
-from gridflow.sweep import SweepSpec, run_sweep
+from gridflow.bench.claims import check_claims
+from gridflow.bench.sweep import SweepSpec, run_sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 STORED = ROOT / "results" / "sweep_paper.csv"

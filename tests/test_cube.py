@@ -4,12 +4,12 @@ against what the images show.  Needs Debian's `povray` (.ci/run installs it)."""
 import numpy as np
 import pytest
 
-from gridflow.cli import main
-from gridflow.cube import cube_table, face_interior, observation11, run_cube
+from gridflow.bench.cli import main
+from gridflow.bench.cube import cube_table, face_interior, observation11, run_cube
 from gridflow.io import load_estimate
 from gridflow.loader import load_folder
-from gridflow.render import PovrayMissing, povray_binary, render_cube
-from scenes import CubeScene, cube_truth
+from gridflow.scenes.render import PovrayMissing, povray_binary, render_cube
+from gridflow.scenes import CubeScene, cube_truth
 
 
 @pytest.fixture(scope="module")

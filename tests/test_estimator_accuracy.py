@@ -1,6 +1,6 @@
 """Noise-free accuracy on the default sinusoid (5x5 cameras, 9 frames, 192x192).
 
-The bounds are the requirements of issue 2 / the paper's observations; the values
+The bounds are the estimator's accuracy requirements and the paper's observations; the values
 measured when this was written are in the comments and in docs/reproduction.md, so the
 margin each bound leaves is visible.
 """
@@ -26,7 +26,7 @@ def test_a1_relative_error(run, a1):
 
 
 def test_a1_equal_one_reported(run):
-    # reported in the issue note (measured 4.1e-4); the paper: "moderately raises" past 1.
+    # measured 4.1e-4 (docs/reproduction.md); the paper: "moderately raises" past 1.
     _, _, s = run(a1=1.0)
     assert s["full"]["a1"]["q_rel"] < 0.05
 

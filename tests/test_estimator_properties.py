@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from estimator import InputError, estimate, estimate_models
-from generators import make_sinusoid
+from gridflow.estimator import InputError, estimate, estimate_models
+from gridflow.generators import make_sinusoid
 
 SMALL = dict(height=80, width=80, frames=7)
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from estimator.filters import FILTER_NAMES, get_filter_pair
+from gridflow.estimator.filters import FILTER_NAMES, get_filter_pair
 
 
 @pytest.mark.parametrize("name", FILTER_NAMES)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from generators import SinusoidParams, make_sinusoid
+from gridflow.generators import SinusoidParams, make_sinusoid
 
 # Rendering is float64 throughout; these comparisons are exact up to roundoff of sin/exp
 # of arguments <= ~1e3, i.e. ~1e-12.

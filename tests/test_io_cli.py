@@ -4,8 +4,8 @@
 import numpy as np
 import pytest
 
-from generators import make_sinusoid
-from gridflow.cli import main
+from gridflow.generators import make_sinusoid
+from gridflow.bench.cli import main
 from gridflow.io import load_estimate, load_volume, save_volume
 from gridflow.volume import GridVolume
 

@@ -10,9 +10,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from estimator import InputError, estimate
-from generators import SinusoidParams, make_sinusoid
-from gridflow.sweep import SpecError, SweepSpec
+from gridflow.estimator import InputError, estimate
+from gridflow.generators import SinusoidParams, make_sinusoid
+from gridflow.bench.sweep import SpecError, SweepSpec
 
 TRIED = Counter()     # reported by conftest.pytest_terminal_summary
 

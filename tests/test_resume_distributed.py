@@ -10,7 +10,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from gridflow.sweep import SweepSpec, run_sweep
+from gridflow.bench.sweep import SweepSpec, run_sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 SPEC = """
@@ -35,7 +35,7 @@ def _parts(out: Path):
 
 
 def _run(spec, out):
-    return subprocess.Popen([sys.executable, "-m", "gridflow.cli", "sweep", str(spec), "-o",
+    return subprocess.Popen([sys.executable, "-m", "gridflow.bench.cli", "sweep", str(spec), "-o",
                              str(out), "--processes", "1", "--no-progress"], cwd=ROOT,
                             start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
@@ -73,7 +73,7 @@ def test_sigkill_at_several_points_then_resume(tmp_path):
 
 @pytest.mark.slow
 def test_local_dask_cluster_gives_the_in_process_result(tmp_path):
-    from gridflow.distributed import make_client
+    from gridflow.bench.distributed import make_client
 
     spec = SweepSpec.from_toml(_write(tmp_path))
     ref = tmp_path / "ref.csv"
@@ -88,7 +88,7 @@ def test_local_dask_cluster_gives_the_in_process_result(tmp_path):
 
 
 def test_unreachable_scheduler_is_a_clear_error():
-    from gridflow.distributed import make_client
+    from gridflow.bench.distributed import make_client
 
     with pytest.raises(RuntimeError, match="cannot reach the dask scheduler"):
         make_client("tcp://127.0.0.1:9")

@@ -3,9 +3,9 @@
 import pandas as pd
 import pytest
 
-import gridflow.sweep as sweep_mod
-from gridflow.cli import main
-from gridflow.sweep import SpecError, SweepSpec, run_point, run_sweep
+import gridflow.bench.sweep as sweep_mod
+from gridflow.bench.cli import main
+from gridflow.bench.sweep import SpecError, SweepSpec, run_point, run_sweep
 
 SMALL = {"height": 80, "width": 80, "frames": 7}
 
@@ -49,6 +49,18 @@ def test_spec_file_errors(tmp_path):
 def test_repository_specs_are_valid():
     spec = SweepSpec.from_toml("bench/sweeps/paper.toml")
     assert [p for p, _ in spec.axes] == ["a1", "a1x", "a2", "a2x"]
+
+
+def test_shipped_specs_are_found_by_name(tmp_path, monkeypatch):
+    assert set(sweep_mod.shipped_specs()) == {"paper", "smoke"}
+    assert SweepSpec.from_toml("paper") == SweepSpec.from_toml("bench/sweeps/paper.toml")
+    # a file of that name in the working folder wins over the shipped spec
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "paper").write_text('[sweep]\nname = "mine"\n[[axis]]\nparam = "a1"\n'
+                                    'values = [0.1]\n')
+    assert SweepSpec.from_toml("paper").name == "mine"
+    with pytest.raises(SpecError, match="not the name of a shipped spec"):
+        SweepSpec.from_toml("papr")
 
 
 def test_rows_and_order_do_not_depend_on_execution(tmp_path):

@@ -1,4 +1,4 @@
-"""The paper's observations 1-10 (model.md, Sec. 4.1), checked on a sweep CSV.
+"""The paper's observations 1-10 (docs/model.md, Sec. 4.1), checked on a sweep CSV.
 
 Each observation is a function of the sweep table returning the numbers behind it and a
 verdict: ``holds``, ``partly`` or ``does not hold``.  The thresholds that turn the paper's
@@ -73,7 +73,7 @@ def _x_rms(df) -> float:
     """rms material X over the interior, from the generator settings of the sweep."""
     import json
 
-    from generators import SinusoidParams
+    from gridflow.generators import SinusoidParams
 
     g = json.loads(df.generator.iloc[0]) if "generator" in df else {}
     base = SinusoidParams()
@@ -263,7 +263,7 @@ def render_markdown(table: pd.DataFrame, source: str) -> str:
 
 def write_claims(table: pd.DataFrame, doc=None, csv=None, source: str = "") -> None:
     """Rewrite the claims section of ``doc`` (between the markers) and/or write ``csv``."""
-    from .io import atomic_write
+    from gridflow.io import atomic_write
 
     if csv:
         with atomic_write(csv, "w") as fh:

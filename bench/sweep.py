@@ -1,6 +1,6 @@
 """Parameter sweeps over sinusoid volumes: the benchmark behind Figs. 3 and 4.
 
-A sweep spec (TOML, see ``bench/sweeps/paper.toml``) names the models, noise levels,
+A sweep spec (TOML; the shipped ones are in ``bench/sweeps/``, found by name: ``paper``) names the models, noise levels,
 seeds, base generator parameters, estimator settings and one or more axes (a parameter
 and its values).  Every (axis, value, noise, seed) is a *point*: one volume, on which all
 models run with a shared structure tensor.  Each point's rows are written atomically to a
@@ -27,13 +27,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from estimator import MODELS, EstimatorSettings, estimate_models
-from generators import SinusoidParams, check_params, make_sinusoid
+from gridflow.estimator import MODELS, EstimatorSettings, estimate_models
+from gridflow.generators import SinusoidParams, check_params, make_sinusoid
 
-from .io import atomic_write
+from gridflow.io import atomic_write
 from .metrics import evaluate
 
-__all__ = ["SweepSpec", "Point", "run_point", "run_sweep", "SpecError", "COLUMNS"]
+__all__ = ["SweepSpec", "Point", "run_point", "run_sweep", "SpecError", "COLUMNS",
+           "shipped_specs", "resolve_spec"]
 
 COLUMNS = ["sweep", "param", "value", "noise", "seed", "model", "quantity", "measure", "q",
            "q_rel", "q_abs", "n_pixels", "n_invalid", "generator", "estimator"]
@@ -83,7 +84,9 @@ class SweepSpec:
 
     @classmethod
     def from_toml(cls, path) -> "SweepSpec":
-        path = Path(path)
+        """Read a spec from a TOML file, or a spec shipped with gridflow by its name
+        (``"paper"``: see :func:`shipped_specs`)."""
+        path = resolve_spec(path)
         try:
             raw = tomllib.loads(path.read_text())
         except FileNotFoundError:
@@ -153,12 +156,46 @@ class SweepSpec:
                                "seed": point.seed})
 
 
+def shipped_specs() -> dict[str, Path]:
+    """The sweep specs installed with gridflow (``bench/sweeps/*.toml``), by name."""
+    from importlib.resources import files
+
+    folder = files("gridflow.bench") / "sweeps"
+    return {Path(f.name).stem: Path(str(f)) for f in folder.iterdir()
+            if f.name.endswith(".toml")}
+
+
+def resolve_spec(spec) -> Path:
+    """The file of a sweep spec given as a path or as the name of a shipped spec.
+
+    An existing file wins; a bare name (no folder, no ``.toml``) is looked up among
+    :func:`shipped_specs`.
+
+    Raises
+    ------
+    SpecError
+        Neither a file nor a shipped spec's name.
+    """
+    path = Path(spec)
+    if path.is_file():
+        return path
+    if path.suffix == "" and path.name == str(spec):
+        shipped = shipped_specs()
+        if str(spec) in shipped:
+            return shipped[str(spec)]
+        raise SpecError(f"{spec}: no such sweep spec file, and not the name of a shipped "
+                        f"spec (shipped: {', '.join(sorted(shipped))})")
+    raise SpecError(f"{spec}: no such sweep spec")
+
+
 def _code_fingerprint() -> str:
     """Hash of the numerics' source: a part made by other code is not reused."""
+    import importlib
+
     h = hashlib.sha1()
-    root = Path(__file__).resolve().parent.parent
     for pkg in _SOURCES:
-        for f in sorted((root / pkg).glob("*.py")):
+        folder = Path(importlib.import_module(f"gridflow.{pkg}").__file__).parent
+        for f in sorted(folder.glob("*.py")):
             h.update(f.read_bytes())
     return h.hexdigest()[:12]
 

@@ -6,7 +6,7 @@ last frames are darkened alike (``exp(-0.2 * 4^2) = 0.04``); the reference frame
 between them to make that visible.
 Fig. 3: errors of ``a1`` and ``a2`` against each of ``a1, a1x, a2, a2x`` (HF and full).
 Fig. 4: ``Q_rel(U_Z)`` against the same, three models, noise-free and sigma_n = 0.025.
-Fig. 1 (the cube) is drawn by :mod:`gridflow.cube`.
+Fig. 1 (the cube) is drawn by :mod:`gridflow.bench.cube`.
 
 Error measure per panel (Eq. 22): relative when the quantity is the swept parameter
 itself, absolute for cross-talk (the swept parameter leaves the quantity's reference at 0
@@ -62,6 +62,17 @@ def _ylabel(quantity: str, measure: str) -> str:
     return (r"$Q_{rel}$" if measure == "q_rel" else r"$Q_{abs}$") + f" of {q}"
 
 
+def _log_axes(ax) -> None:
+    """Log-log axes, or a note where the sweep holds no positive value for this panel (a
+    sweep need not cover every parameter)."""
+    if not any(np.any(np.asarray(line.get_ydata(), float) > 0) for line in ax.get_lines()):
+        ax.text(0.5, 0.5, "not in this sweep", transform=ax.transAxes, ha="center",
+                va="center", color="0.5")
+        return
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+
+
 def _panel(ax, df: pd.DataFrame, quantity: str, param: str, models, noise: float) -> None:
     measure = _measure(quantity, param)
     for model in models:
@@ -76,8 +87,7 @@ def _panel(ax, df: pd.DataFrame, quantity: str, param: str, models, noise: float
         zero = d[d.value == 0][measure]
         if len(zero) and np.isfinite(zero.iloc[0]) and zero.iloc[0] > 0:
             ax.axhline(zero.iloc[0], color=st["color"], ls=":", lw=0.8)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
+    _log_axes(ax)
     sign = "-" if (df[df.param == param].value < 0).any() else ""
     ax.set_xlabel(f"{sign}{PARAM_LABEL[param]}" if sign else PARAM_LABEL[param])
     ax.set_ylabel(_ylabel(quantity, measure))
@@ -110,8 +120,7 @@ def fig4(df: pd.DataFrame, noise: float = 0.025):
                     zero = d[d.value == 0].q_rel
                     if len(zero):
                         ax.axhline(zero.iloc[0], color=MODEL_STYLE[model]["color"], ls=":", lw=0.8)
-                ax.set_xscale("log")
-                ax.set_yscale("log")
+                _log_axes(ax)
                 sign = "-" if (df[df.param == p].value < 0).any() else ""
                 ax.set_xlabel(f"{sign}{PARAM_LABEL[p]}")
                 ax.set_ylabel(r"$Q_{rel}$ of $U_Z$" + ("" if n == 0 else rf", $\sigma_n$={n}"))

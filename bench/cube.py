@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from estimator import estimate_models
-from scenes import FACE_NAMES, face_interior
+from gridflow.estimator import estimate_models
+from gridflow.scenes import FACE_NAMES, face_interior
 
 from .metrics import q_abs, q_rel
 

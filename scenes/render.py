@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from scenes import CubeScene, cube_truth, scene_sdl
+from gridflow.io import atomic_write
 
-from .io import atomic_write
+from .cube import CubeScene, cube_truth, scene_sdl
 
 __all__ = ["render_cube", "povray_binary", "PovrayMissing", "IMAGE_PATTERN"]
 

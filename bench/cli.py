@@ -1,4 +1,9 @@
-"""Command-line interface: ``gridflow generate | estimate | evaluate | ...``."""
+"""Command-line interface, the top floor of gridflow (imported by no other module).
+
+``gridflow generate | estimate | evaluate`` work on single volumes; ``gridflow sweep |
+figures | claims | cube`` drive the benchmark.  Heavy libraries are imported inside the
+commands that need them.
+"""
 
 from __future__ import annotations
 
@@ -14,7 +19,7 @@ __all__ = ["main"]
 
 
 def _add_sinusoid_args(p: argparse.ArgumentParser) -> None:
-    from generators import SinusoidParams
+    from gridflow.generators import SinusoidParams
 
     g = p.add_argument_group("sinusoid parameters (defaults: docs/reproduction.md)")
     for fl in fields(SinusoidParams):
@@ -28,7 +33,7 @@ def _add_sinusoid_args(p: argparse.ArgumentParser) -> None:
 
 
 def _add_estimator_args(p: argparse.ArgumentParser) -> None:
-    from estimator.filters import FILTER_NAMES
+    from gridflow.estimator.filters import FILTER_NAMES
 
     g = p.add_argument_group("estimator settings")
     g.add_argument("--model", choices=("bcc", "hf", "full"), default="full",
@@ -53,20 +58,20 @@ def _estimator_settings(a) -> dict:
 
 
 def _load_input(path: str):
-    from .io import load_volume
+    from gridflow.io import load_volume
 
     p = Path(path)
     if p.is_dir():
-        from .loader import load_folder  # camera-grid image folder with grid.json
+        from gridflow.loader import load_folder  # camera-grid image folder with grid.json
 
         return load_folder(p)
     return load_volume(p)
 
 
 def cmd_generate(a) -> int:
-    from generators import make_sinusoid
+    from gridflow.generators import make_sinusoid
 
-    from .io import save_volume
+    from gridflow.io import save_volume
 
     over = {fl: getattr(a, fl) for fl in vars(a) if fl in _sinusoid_fields()
             and getattr(a, fl) is not None}
@@ -78,15 +83,15 @@ def cmd_generate(a) -> int:
 
 
 def _sinusoid_fields():
-    from generators import SinusoidParams
+    from gridflow.generators import SinusoidParams
 
     return {fl.name for fl in fields(SinusoidParams)}
 
 
 def cmd_estimate(a) -> int:
-    from estimator import estimate
+    from gridflow.estimator import estimate
 
-    from .io import save_estimate
+    from gridflow.io import save_estimate
 
     data = _load_input(a.input)
     t0 = time.perf_counter()
@@ -101,7 +106,7 @@ def cmd_estimate(a) -> int:
 
 
 def cmd_evaluate(a) -> int:
-    from .io import load_estimate
+    from gridflow.io import load_estimate
     from .metrics import evaluate
 
     maps, interior, meta = load_estimate(a.estimate)
@@ -124,7 +129,7 @@ def cmd_sweep(a) -> int:
     if a.spec:
         spec = SweepSpec.from_toml(a.spec)
     else:
-        from estimator import MODELS
+        from gridflow.estimator import MODELS
 
         spec = SweepSpec(name=a.name, models=list(MODELS), noise=[0.0], seeds=[0])
     if a.param or a.values:
@@ -159,7 +164,7 @@ def cmd_sweep(a) -> int:
 def cmd_figures(a) -> int:
     import pandas as pd
 
-    from generators import make_sinusoid
+    from gridflow.generators import make_sinusoid
 
     from . import figures as F
 
@@ -206,13 +211,13 @@ def cmd_claims(a) -> int:
 
 
 def cmd_cube(a) -> int:
-    from scenes import CubeScene
+    from gridflow.scenes import CubeScene
 
     from . import figures as F
     from .cube import cube_table, fig1, observation11, run_cube
-    from .io import atomic_write
-    from .loader import load_folder
-    from .render import render_cube
+    from gridflow.io import atomic_write
+    from gridflow.loader import load_folder
+    from gridflow.scenes.render import render_cube
 
     scene = CubeScene(width=a.size, height=a.size, grid=(a.grid, a.grid), frames=a.frames)
     t0 = time.perf_counter()
@@ -239,7 +244,14 @@ def cmd_cube(a) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="gridflow", description=__doc__)
+    from gridflow import __version__
+
+    ap = argparse.ArgumentParser(
+        prog="gridflow",
+        description="Surface motion, depth and slopes from a camera grid under changing "
+                    "illumination (Schuchert & Scharr, DAGM 2007), and the benchmark that "
+                    "reproduces the paper's figures.")
+    ap.add_argument("--version", action="version", version=f"gridflow {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("generate", help="render a sinusoid volume (.npz)")
@@ -260,7 +272,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("sweep", help="run a parameter sweep, write a tidy CSV")
-    p.add_argument("spec", nargs="?", help="sweep spec (TOML), e.g. bench/sweeps/paper.toml")
+    p.add_argument("spec", nargs="?",
+                   help="sweep spec: a TOML file, or the name of a shipped spec "
+                        "('paper': the paper's sweeps; 'smoke': a seconds-long check)")
     p.add_argument("-o", "--output", required=True, help="output CSV")
     p.add_argument("--name", default="sweep", help="sweep name (without a spec)")
     p.add_argument("--param", help="parameter to sweep (replaces the spec's axes)")
@@ -305,8 +319,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    import logging
+
     ap = build_parser()
     a = ap.parse_args(argv)
+    # the library reports long silent steps (first-run kernel compilation) at INFO level
+    log = logging.getLogger("gridflow")
+    if not log.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("gridflow: %(message)s"))
+        log.addHandler(handler)
+        log.setLevel(logging.INFO)
     try:
         return a.func(a)
     except (ValueError, TypeError, FileNotFoundError, OSError, RuntimeError) as exc:

@@ -1,0 +1,212 @@
+"""The package layout: one installed namespace, and layers whose imports only run downwards.
+
+The layers, bottom to top (README, *Layout*):
+
+    gridflow/ (shared base: volume container, file formats)   estimator/ (numerics)
+    generators/, scenes/ (data sources)
+    bench/ (benchmark) and bench/cli.py (the CLI, imported by nothing)
+
+The import rules are checked on the source (every ``import`` statement, also those inside
+functions), so a violation fails here whether or not a test happens to execute it.  The
+install test builds a wheel from a copy of the repository's files and installs it, without
+its dependencies, into a fresh virtual environment outside the repository; the
+dependencies are lent from the test environment by a ``.pth`` line, so the test needs no
+network and installs nothing else.
+"""
+
+from __future__ import annotations
+
+import ast
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+import venv
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+# folder -> (installed name, project subpackages it may import)
+LAYERS = {
+    "gridflow": ("gridflow", set()),
+    "estimator": ("gridflow.estimator", set()),
+    "generators": ("gridflow.generators", {"gridflow"}),
+    "scenes": ("gridflow.scenes", {"gridflow"}),
+    "bench": ("gridflow.bench", {"gridflow", "gridflow.estimator", "gridflow.generators",
+                                 "gridflow.scenes"}),
+}
+# third-party libraries that belong to the edges: the numerics and data sources never need
+# them (pictures and tables are the benchmark's business)
+EDGE_LIBRARIES = {"matplotlib", "pandas", "dask", "distributed", "tqdm"}
+NUMERICS = {"estimator", "generators"}
+
+
+def _imports(path: Path, package: str) -> set[str]:
+    """Absolute names of everything ``path`` imports (relative imports resolved)."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    pkg = package.split(".")            # the module's __package__ (its folder's name)
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg[:len(pkg) - node.level + 1]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module
+            names.add(mod)
+            names |= {f"{mod}.{a.name}" for a in node.names}
+    return names
+
+
+def _layer_of(name: str) -> str | None:
+    """The project layer an imported name belongs to, or None for other libraries."""
+    parts = name.split(".")
+    if parts[0] in ("estimator", "generators", "scenes", "bench"):
+        return "old top-level package " + parts[0]
+    if parts[0] != "gridflow":
+        return None
+    if len(parts) > 1 and parts[1] in ("estimator", "generators", "scenes", "bench"):
+        return "gridflow." + parts[1]
+    if len(parts) > 1 and parts[1] in ("cli",):
+        return "gridflow.bench"
+    return "gridflow"
+
+
+def _project_modules():
+    for folder, (package, _) in LAYERS.items():
+        for path in sorted((ROOT / folder).glob("*.py")):
+            yield folder, package, path
+
+
+@pytest.mark.parametrize("folder", sorted(LAYERS))
+def test_no_import_runs_upwards(folder):
+    package, allowed = LAYERS[folder]
+    bad = []
+    for path in sorted((ROOT / folder).glob("*.py")):
+        for name in _imports(path, package):
+            layer = _layer_of(name)
+            if layer is None or layer == package:
+                continue
+            if layer not in allowed:
+                bad.append(f"{path.relative_to(ROOT)} imports {name} ({layer})")
+            if folder in NUMERICS and name.split(".")[0] in EDGE_LIBRARIES:
+                bad.append(f"{path.relative_to(ROOT)} imports {name}")
+        if folder in NUMERICS:
+            bad += [f"{path.relative_to(ROOT)} imports {n}" for n in _imports(path, package)
+                    if n.split(".")[0] in EDGE_LIBRARIES | {"imageio", "tifffile", "vapory"}]
+    assert not bad, "imports against the layering:\n" + "\n".join(sorted(set(bad)))
+
+
+def test_the_cli_is_imported_by_nothing():
+    users = [f"{path.relative_to(ROOT)}" for _, package, path in _project_modules()
+             if path != ROOT / "bench" / "cli.py"
+             and any(n == "gridflow.bench.cli" or n.startswith("gridflow.bench.cli.")
+                     for n in _imports(path, package))]
+    assert not users, f"the CLI is the top floor, yet imported by {users}"
+
+
+def test_the_checker_sees_a_violation(tmp_path):
+    """The import check must be able to fail: a numerics module importing the benchmark."""
+    bad = tmp_path / "bad.py"
+    bad.write_text("from ..bench import sweep\nimport matplotlib.pyplot\n")
+    names = _imports(bad, "gridflow.estimator")
+    assert "gridflow.bench" in names and _layer_of("gridflow.bench.sweep") == "gridflow.bench"
+    assert "matplotlib.pyplot" in names
+
+
+# --- the installed wheel ---------------------------------------------------------------------
+
+_TRACKED_IGNORE = shutil.ignore_patterns(".git", ".venv", "work", "build", "*.egg-info",
+                                         "__pycache__", ".pytest_cache", ".hypothesis",
+                                         "results", "tests", ".gl", ".whl")
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory):
+    """A fresh virtual environment outside the repository with gridflow installed from a
+    wheel (not editable) by the environment's own pip; returns (python, site-packages,
+    working folder)."""
+    tmp = tmp_path_factory.mktemp("wheel")
+    src = tmp / "src"
+    shutil.copytree(ROOT, src, ignore=_TRACKED_IGNORE)
+    dist = tmp / "dist"
+    # the wheel is built with the test environment's setuptools (no network needed)
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation",
+                    "-q", "-w", str(dist), str(src)], check=True, capture_output=True)
+    wheel = next(dist.glob("gridflow-*.whl"))
+    env_dir = tmp / "venv"
+    venv.EnvBuilder(with_pip=True, symlinks=True).create(env_dir)
+    py = env_dir / "bin" / "python"
+    subprocess.run([str(py), "-m", "pip", "install", "--no-deps", "--no-index", "-q",
+                    str(wheel)], check=True, capture_output=True)
+    site = Path(subprocess.run([str(py), "-c", "import sysconfig; "
+                                "print(sysconfig.get_paths()['purelib'])"],
+                               check=True, capture_output=True, text=True).stdout.strip())
+    # the dependencies (numpy, scipy, ...) come from this environment, after the new one's
+    # own site-packages on sys.path
+    (site / "zz_test_dependencies.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    work = tmp / "elsewhere"
+    work.mkdir()
+    return py, site, work
+
+
+def _run(installed, *args, **kw):
+    """Run ``args`` (the environment's python when the first is an option or ``-c``)."""
+    py, _, work = installed
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    cmd = [str(py), *args] if args[0].startswith("-") else list(args)
+    return subprocess.run(cmd, cwd=work, env=env, capture_output=True, text=True,
+                          timeout=300, **kw)
+
+
+# what a fresh virtual environment holds before anything is installed (the installer itself)
+_INSTALLER = {"pip", "setuptools", "pkg_resources", "_distutils_hack", "__pycache__"}
+
+
+def test_site_packages_holds_gridflow_alone(installed):
+    _, site, _ = installed
+    top = sorted(p.name for p in site.iterdir()
+                 if not p.name.endswith((".dist-info", ".pth")) and p.name not in _INSTALLER)
+    assert top == ["gridflow"], top
+    inner = {p.name for p in (site / "gridflow").iterdir()}
+    assert {"estimator", "generators", "scenes", "bench"} <= inner
+    assert (site / "gridflow" / "bench" / "sweeps" / "paper.toml").is_file()
+
+
+def test_installed_imports(installed):
+    _, site, _ = installed
+    r = _run(installed, "-c",
+             "import gridflow, gridflow.estimator, gridflow.generators, gridflow.scenes, "
+             "gridflow.bench; from gridflow.estimator import estimate; "
+             "from gridflow.generators import make_sinusoid; print(gridflow.__file__)")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip().startswith(str(site)), r.stdout
+    for name in ("estimator", "generators", "scenes", "bench"):
+        r = _run(installed, "-c", f"import {name}")
+        assert r.returncode != 0 and "ModuleNotFoundError" in r.stderr, (name, r.stderr)
+
+
+def test_installed_cli_runs_outside_the_repository(installed):
+    py, _, work = installed
+    gridflow = str(py.parent / "gridflow")      # the console script the wheel installed
+    from gridflow import __version__
+
+    r = _run(installed, gridflow, "--version")
+    assert r.returncode == 0 and r.stdout.strip() == f"gridflow {__version__}", r
+    # a shipped spec found by name, run end to end
+    r = _run(installed, gridflow, "sweep", "smoke", "-o", "s.csv", "--no-progress",
+             "--processes", "1")
+    assert r.returncode == 0, r.stderr
+    assert (work / "s.csv").is_file() and len((work / "s.csv").read_text().splitlines()) > 1
+    r = _run(installed, gridflow, "claims", "s.csv")
+    assert r.returncode == 0, r.stderr
+    r = _run(installed, gridflow, "figures", "--sweep", "s.csv", "--out", "figs")
+    assert r.returncode == 0, r.stderr
+    assert (work / "figs" / "fig3.png").is_file()
+    r = _run(installed, gridflow, "sweep", "nosuchspec", "-o", "x.csv")
+    assert r.returncode == 2 and "shipped: paper, smoke" in r.stderr, r.stderr

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-__all__ = ["check_claims", "render_markdown", "write_claims", "CLAIMS"]
+__all__ = ["check_claims", "render_markdown", "write_claims", "CLAIMS", "missing_data"]
 
 START, END = "<!-- claims:start -->", "<!-- claims:end -->"
 
@@ -193,10 +193,7 @@ def obs9(df) -> Result:
 
 
 def obs10(df) -> Result:
-    noisy = sorted(n for n in df.noise.unique() if n > 0)
-    if not noisy:
-        return Result("not tested", "no noisy rows")
-    n = noisy[0]
+    n = min(v for v in df.noise.unique() if v > 0)
     same, parts, changed = [], [], []
     for p in ("a1", "a1x", "a2", "a2x"):
         for m in ("bcc", "hf", "full"):
@@ -237,22 +234,69 @@ CLAIMS = [
            "from well below 0.01", obs10),
 ]
 
+_ALL = ("bcc", "hf", "full")
+# what each observation's check reads: (swept parameters, models, quantities, needs noise)
+NEEDS = {
+    "1": (("a1",), ("full",), ("a1",), False),
+    "2": (("a2",), ("full",), ("a2",), False),
+    "3": (("a1x",), ("hf", "full"), ("a1",), False),
+    "4": (("a2x",), ("hf", "full"), ("a2",), False),
+    "5": (("a1", "a2", "a2x"), ("hf", "full"), ("a1", "a2"), False),
+    "6": (("a1x",), ("hf", "full"), ("a2",), False),
+    "7": (("a1",), _ALL, ("Uz",), False),
+    "8": (("a1x",), _ALL, ("Uz",), False),
+    "9": (("a2", "a2x"), _ALL, ("Uz",), False),
+    "10": (("a1", "a1x", "a2", "a2x"), _ALL, ("Uz",), True),
+}
+MIN_VALUES = 3      # non-zero values per curve, besides 0 itself (slopes, first/last points)
+
+
+def missing_data(df: pd.DataFrame, cid: str) -> str | None:
+    """Why the sweep cannot test observation ``cid``, or None when it has every curve."""
+    params, models, quantities, noisy = NEEDS[cid]
+    lacking = []
+    for p in params:
+        if not (df.param == p).any():
+            lacking.append(f"no {p} axis")
+            continue
+        for m in models:
+            if not ((df.param == p) & (df.model == m)).any():
+                lacking.append(f"no {m} rows on the {p} axis")
+                continue
+            for q in quantities:
+                d = df[(df.param == p) & (df.model == m) & (df.quantity == q) & (df.noise == 0)]
+                values = set(d.value)
+                if 0 not in values or len(values - {0}) < MIN_VALUES:
+                    lacking.append(f"{m} {q} on the {p} axis needs 0 and at least "
+                                   f"{MIN_VALUES} other noise-free values")
+                elif noisy and (df.noise > 0).any():
+                    n = df.noise[df.noise > 0].min()
+                    dn = df[(df.param == p) & (df.model == m) & (df.quantity == q)
+                            & (df.noise == n)]
+                    if not values <= set(dn.value):
+                        lacking.append(f"{m} {q} on the {p} axis lacks noisy rows "
+                                       f"(sigma_n = {n:g}) at some values")
+    if noisy and not (df.noise > 0).any():
+        lacking.append("no noisy rows")
+    return "; ".join(dict.fromkeys(lacking)) or None
+
 
 def check_claims(df: pd.DataFrame) -> pd.DataFrame:
-    """Evaluate every observation; returns a table ``id, observation, verdict, numbers``."""
+    """Evaluate every observation; returns a table ``id, observation, verdict, numbers``.
+
+    An observation whose data the sweep does not hold is ``not tested``, with the reason.
+    """
     rows = []
     for cid, text, fn in CLAIMS:
-        try:
-            r = fn(df)
-        except (KeyError, IndexError, ValueError) as exc:
-            r = Result("not tested", f"sweep lacks the rows ({exc})")
+        why = missing_data(df, cid)
+        r = Result("not tested", f"the sweep lacks its data: {why}") if why else fn(df)
         rows.append({"id": cid, "observation": text, "verdict": r.verdict, "numbers": r.numbers})
     return pd.DataFrame(rows)
 
 
 def render_markdown(table: pd.DataFrame, source: str) -> str:
     lines = [START, "", f"Checked by `gridflow claims {source}` (thresholds: "
-             "`gridflow/claims.py`).", "",
+             "`bench/claims.py`).", "",
              "| # | observation | verdict | measured |", "|---|---|---|---|"]
     for r in table.itertuples():
         cells = [str(c).replace("|", "\\|") for c in (r.observation, r.numbers)]

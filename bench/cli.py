@@ -68,11 +68,21 @@ def _load_input(path: str):
     return load_volume(p)
 
 
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
+    return v
+
+
 def cmd_generate(a) -> int:
     from gridflow.generators import make_sinusoid
+    from gridflow.io import check_output, save_volume
 
-    from gridflow.io import save_volume
-
+    check_output(a.output, suffixes=".npz", what="-o")
     over = {fl: getattr(a, fl) for fl in vars(a) if fl in _sinusoid_fields()
             and getattr(a, fl) is not None}
     over = {k: tuple(v) if isinstance(v, list) else v for k, v in over.items()}
@@ -89,14 +99,19 @@ def _sinusoid_fields():
 
 
 def cmd_estimate(a) -> int:
-    from gridflow.estimator import estimate
+    from gridflow.estimator import EstimatorSettings, estimate
+    from gridflow.io import check_output, save_estimate
 
-    from gridflow.io import save_estimate
-
+    check_output(a.output, suffixes=".npz", inputs=[a.input], what="-o")
+    settings = _estimator_settings(a)
+    EstimatorSettings(**settings)               # bad settings fail before the volume loads
     data = _load_input(a.input)
+    if settings["ref_frame"] is None:
+        # an image folder's grid.json may name its reference frame (--ref-frame overrides)
+        settings["ref_frame"] = data.meta.get("ref_frame")
     t0 = time.perf_counter()
     est = estimate(data.volume, data.focal_length, data.camera_spacing, model=a.model,
-                   principal_point=data.principal_point, **_estimator_settings(a))
+                   principal_point=data.principal_point, **settings)
     dt = time.perf_counter() - t0
     save_estimate(a.output, est)
     n_ok = int(np.isfinite(est["Z"][est.interior]).sum())
@@ -110,22 +125,42 @@ def cmd_evaluate(a) -> int:
     from .metrics import evaluate
 
     maps, interior, meta = load_estimate(a.estimate)
-    truth = _load_input(a.volume).truth
+    truth = dict(_load_input(a.volume).truth)
     if not truth:
-        raise ValueError(f"{a.volume}: holds no truth_<name> maps to evaluate against")
+        raise ValueError(f"{a.volume}: holds no truth maps to evaluate against")
+    shape = next(iter(truth.values())).shape
+    if interior.shape != shape:
+        raise ValueError(f"{a.estimate}: maps of shape {interior.shape} do not match the truth "
+                         f"of {a.volume} {shape}")
+    # a truth map named 'interior' (the rendered cube has one: pixels away from the faces'
+    # edges) restricts the evaluation further
+    own = truth.pop("interior", None)
+    if own is not None:
+        interior = interior & own.astype(bool)
     rows = evaluate(maps, truth, interior)
     if not rows:
-        raise ValueError("estimate and volume share no quantity names")
-    print(f"model {meta.get('model', '?')}: Eq. 22 over {rows[0]['n_pixels']} interior pixels")
-    print(f"{'quantity':<9} {'Q_rel':>11} {'Q_abs':>11} {'invalid':>8}")
+        raise ValueError(f"{a.estimate} and {a.volume} share no quantity names")
+    print(f"model {meta.get('model', '?')}: Eq. 22 over interior pixels with finite truth"
+          + (" and the truth's own interior mask" if own is not None else ""))
+    print(f"{'quantity':<9} {'Q_rel':>11} {'Q_abs':>11} {'pixels':>8} {'invalid':>8}")
     for r in rows:
-        print(f"{r['quantity']:<9} {r['q_rel']:>11.4g} {r['q_abs']:>11.4g} {r['n_invalid']:>8d}")
+        print(f"{r['quantity']:<9} {r['q_rel']:>11.4g} {r['q_abs']:>11.4g} "
+              f"{r['n_pixels']:>8d} {r['n_invalid']:>8d}")
     return 0
 
 
 def cmd_sweep(a) -> int:
-    from .sweep import SpecError, SweepSpec, run_sweep
+    from gridflow.io import check_output
 
+    from .sweep import SpecError, SweepInterrupted, SweepSpec, resolve_spec, run_sweep
+
+    inputs = [resolve_spec(a.spec)] if a.spec else []
+    check_output(a.output, suffixes=".csv", inputs=inputs, what="-o")
+    check_output(Path(a.output).with_suffix(".json"), suffixes=".json", inputs=inputs,
+                 what="the provenance sidecar of -o")
+    if a.scheduler and a.workers:
+        raise SpecError("--scheduler and --workers exclude each other (--workers starts a "
+                        "local cluster)")
     if a.spec:
         spec = SweepSpec.from_toml(a.spec)
     else:
@@ -135,7 +170,7 @@ def cmd_sweep(a) -> int:
     if a.param or a.values:
         if not (a.param and a.values):
             raise SpecError("--param and --values go together")
-        spec.axes = [(a.param, a.values)]
+        spec.axes = [(a.param, list(a.values))]
     for key in ("models", "noise", "seeds"):
         if getattr(a, key) is not None:
             setattr(spec, key, getattr(a, key))
@@ -148,11 +183,14 @@ def cmd_sweep(a) -> int:
     if a.scheduler or a.workers:
         from .distributed import make_client
 
-        client = make_client(a.scheduler, a.workers)
+        client = make_client(a.scheduler, a.workers, timeout=a.connect_timeout)
         print(f"dask: {len(client.scheduler_info()['workers'])} workers", file=sys.stderr)
     try:
         df = run_sweep(spec, a.output, workers=a.processes, progress=not a.no_progress,
                        executor=client)
+    except SweepInterrupted as exc:
+        print(f"gridflow sweep: {exc}", file=sys.stderr)
+        return 143 if exc.signal_name == "SIGTERM" else 130
     finally:
         if client is not None:
             client.close()
@@ -168,13 +206,14 @@ def cmd_figures(a) -> int:
 
     from . import figures as F
 
-    out = Path(a.out)
+    from gridflow.io import check_output
+
+    out = check_output(a.out, suffixes=None, what="--out")
+    if not (a.sweep or a.fig2):
+        raise ValueError("nothing to draw: give --sweep CSV (Figs. 3, 4) and/or --fig2")
     written = []
     if a.sweep:
-        df = pd.read_csv(a.sweep)
-        missing = {"param", "value", "model", "quantity", "noise", "q_rel", "q_abs"} - set(df)
-        if missing:
-            raise ValueError(f"{a.sweep}: not a sweep CSV (missing columns {sorted(missing)})")
+        df = _read_sweep_csv(a.sweep)
         written += F.save(F.fig3(df), out, "fig3")
         written += F.save(F.fig4(df), out, "fig4")
     if a.fig2:
@@ -193,12 +232,37 @@ def cmd_figures(a) -> int:
     return 0
 
 
-def cmd_claims(a) -> int:
+def _read_sweep_csv(path):
+    """A sweep CSV as a DataFrame, or a ValueError naming the file and what is wrong."""
     import pandas as pd
+
+    from gridflow.io import check_input_file
+
+    check_input_file(path, "sweep CSV")
+    try:
+        df = pd.read_csv(path)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not a readable CSV ({exc})") from None
+    need = {"param", "value", "model", "quantity", "noise", "q_rel", "q_abs"}
+    missing = need - set(df)
+    if missing:
+        raise ValueError(f"{path}: not a sweep CSV (missing columns {sorted(missing)})")
+    for col in ("value", "noise", "q_rel", "q_abs"):
+        if not pd.api.types.is_numeric_dtype(df[col]):
+            raise ValueError(f"{path}: column {col!r} must hold numbers")
+    return df
+
+
+def cmd_claims(a) -> int:
+    from gridflow.io import check_output
 
     from .claims import check_claims, write_claims
 
-    df = pd.read_csv(a.csv)
+    if a.write_csv:
+        check_output(a.write_csv, suffixes=".csv", inputs=[a.csv], what="--write-csv")
+    if a.write_doc:
+        check_output(a.write_doc, suffixes=".md", inputs=[a.csv], what="--write-doc")
+    df = _read_sweep_csv(a.csv)
     table = check_claims(df)
     print(table.to_string(index=False, columns=["id", "verdict", "numbers"],
                           max_colwidth=110))
@@ -219,6 +283,11 @@ def cmd_cube(a) -> int:
     from gridflow.loader import load_folder
     from gridflow.scenes.render import render_cube
 
+    from gridflow.io import check_output
+
+    check_output(a.csv, suffixes=".csv", what="--csv")
+    check_output(a.fig_dir, suffixes=None, what="--fig-dir")
+    check_output(a.cache, suffixes=None, what="--cache")
     scene = CubeScene(width=a.size, height=a.size, grid=(a.grid, a.grid), frames=a.frames)
     t0 = time.perf_counter()
     folder = render_cube(scene, a.cache, progress=not a.no_progress)
@@ -282,9 +351,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--models", nargs="+", help="models (default: all three)")
     p.add_argument("--noise", type=float, nargs="+", help="noise levels sigma_n")
     p.add_argument("--seeds", type=int, nargs="+", help="noise seeds")
-    p.add_argument("--processes", type=int, default=None,
+    p.add_argument("--connect-timeout", type=float, default=10.0,
+                   help="seconds to wait for --scheduler or --workers to answer (default 10)")
+    p.add_argument("--processes", type=_positive_int, default=None,
                    help="size of the default in-process pool (default: all cores)")
-    p.add_argument("--workers", type=int, default=None,
+    p.add_argument("--workers", type=_positive_int, default=None,
                    help="start a local dask.distributed cluster of N single-threaded workers")
     p.add_argument("--scheduler", help="address of a running dask scheduler (tcp://HOST:PORT)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -297,9 +368,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_figures)
 
     p = sub.add_parser("cube", help="render the cube (POV-Ray), estimate, Fig. 1 and cube.csv")
-    p.add_argument("--size", type=int, default=256, help="image width = height (default 256)")
-    p.add_argument("--grid", type=int, default=5, help="cameras per side (default 5)")
-    p.add_argument("--frames", type=int, default=9, help="frames (default 9)")
+    p.add_argument("--size", type=_positive_int, default=256, help="image width = height (default 256)")
+    p.add_argument("--grid", type=_positive_int, default=5, help="cameras per side (default 5)")
+    p.add_argument("--frames", type=_positive_int, default=9, help="frames (default 9)")
     p.add_argument("--cache", default="work/cube", help="render cache (default work/cube)")
     p.add_argument("--sigma", type=float, default=8.0,
                    help="window sigma, px (default 8: the 55-px left face of a 256-px image "

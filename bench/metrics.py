@@ -73,7 +73,8 @@ def evaluate(maps: dict[str, np.ndarray], truth: dict[str, np.ndarray], mask: np
     ----------
     maps, truth : dict of str to ndarray, each shape (H, W)
     mask : ndarray of bool, shape (H, W)
-        Pixels free of border effects.
+        Pixels free of border effects.  Pixels where a quantity's truth is not finite
+        (e.g. off the object of a rendered scene) are left out of that quantity.
     quantities : iterable of str, optional
         Restrict to these names.
 
@@ -86,13 +87,14 @@ def evaluate(maps: dict[str, np.ndarray], truth: dict[str, np.ndarray], mask: np
     names = [n for n in maps if n in truth] if quantities is None else list(quantities)
     rows = []
     for name in names:
-        est, ref = maps[name], truth[name]
-        n_inv = int(np.count_nonzero(~np.isfinite(np.asarray(est)[mask])))
-        rel = METRICS["q_rel"].fn(est, ref, mask)
-        ab = METRICS["q_abs"].fn(est, ref, mask)
-        r = np.asarray(ref)[mask]
+        est, ref = maps[name], np.asarray(truth[name], dtype=float)
+        m = mask if np.all(np.isfinite(ref[mask])) else mask & np.isfinite(ref)
+        n_inv = int(np.count_nonzero(~np.isfinite(np.asarray(est)[m])))
+        rel = METRICS["q_rel"].fn(est, ref, m)
+        ab = METRICS["q_abs"].fn(est, ref, m)
+        r = ref[m]
         use_rel = bool(np.all(r > 0) or np.all(r < 0))
         rows.append({"quantity": name, "q_rel": rel, "q_abs": ab,
                      "q": rel if use_rel else ab, "measure": "rel" if use_rel else "abs",
-                     "n_pixels": int(mask.sum()), "n_invalid": n_inv})
+                     "n_pixels": int(m.sum()), "n_invalid": n_inv})
     return rows

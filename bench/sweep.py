@@ -18,6 +18,8 @@ import hashlib
 import json
 import os
 import shutil
+import signal
+import sys
 import tomllib
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
@@ -27,24 +29,53 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from gridflow.estimator import MODELS, EstimatorSettings, estimate_models
+from gridflow.estimator import MODELS, EstimatorSettings, InputError, estimate_models
 from gridflow.generators import SinusoidParams, check_params, make_sinusoid
 
 from gridflow.io import atomic_write
 from .metrics import evaluate
 
-__all__ = ["SweepSpec", "Point", "run_point", "run_sweep", "SpecError", "COLUMNS",
-           "shipped_specs", "resolve_spec"]
+__all__ = ["SweepSpec", "Point", "run_point", "run_sweep", "SpecError", "SweepInterrupted",
+           "COLUMNS", "shipped_specs", "resolve_spec"]
 
 COLUMNS = ["sweep", "param", "value", "noise", "seed", "model", "quantity", "measure", "q",
            "q_rel", "q_abs", "n_pixels", "n_invalid", "generator", "estimator"]
 QUANTITY_ORDER = ["Z", "Zx", "Zy", "Ux", "Uy", "Uz", "a1", "a2", "a1x", "a1y", "a2x", "a2y"]
 _SWEEPABLE = {f.name for f in fields(SinusoidParams)} - {"grid", "spacing", "seed", "noise"}
-_SOURCES = ("estimator", "generators")
+# generator parameters that are integers (sizes); spec values for them must be integral
+_INTEGER = {f.name for f in fields(SinusoidParams) if f.type in ("int", int)}
+# everything a row of the CSV depends on: the code of these modules (besides the spec and
+# the library versions) keys a finished point, so a changed module is never mixed in
+_ROW_SOURCES = ("gridflow.estimator", "gridflow.generators", "gridflow.volume",
+                "gridflow.bench.sweep", "gridflow.bench.metrics")
+_SECTION_KEYS = {"sweep": {"name", "models", "noise", "seeds"}, "base": None,
+                 "estimator": None, "axis": {"param", "values"}}
 
 
 class SpecError(ValueError):
     """A sweep spec that cannot run; raised before any work starts."""
+
+
+class SweepInterrupted(RuntimeError):
+    """A sweep stopped by SIGINT or SIGTERM; the finished points are kept.
+
+    Attributes
+    ----------
+    signal_name : str
+    done, total : int
+        Points finished (kept as parts) and points in the sweep.
+    parts : pathlib.Path
+        Folder of the finished parts; the same command finishes the sweep.
+    """
+
+    def __init__(self, signal_name: str, done: int, total: int, parts: Path):
+        self.signal_name, self.done, self.total, self.parts = signal_name, done, total, parts
+        super().__init__(f"interrupted by {signal_name}: {done} of {total} points finished and "
+                         f"kept in {parts}/; run the same command again to finish the rest")
+
+
+class _Terminated(BaseException):
+    """Raised in the main thread by the SIGTERM handler (a BaseException, like Ctrl-C)."""
 
 
 @dataclass(frozen=True)
@@ -97,50 +128,103 @@ class SweepSpec:
 
     @classmethod
     def from_dict(cls, raw: dict, source: str = "spec") -> "SweepSpec":
-        unknown = set(raw) - {"sweep", "base", "estimator", "axis"}
+        """Build and validate a spec from parsed TOML; every key is used or refused."""
+        if not isinstance(raw, dict):
+            raise SpecError(f"{source}: a spec is a table of sections")
+        unknown = set(raw) - set(_SECTION_KEYS)
         if unknown:
             raise SpecError(f"{source}: unknown section(s) {sorted(unknown)}; expected "
                             "[sweep], [base], [estimator], [[axis]]")
         sw = raw.get("sweep", {})
-        spec = cls(name=str(sw.get("name", "sweep")),
-                   models=list(sw.get("models", list(MODELS))),
-                   noise=[float(v) for v in sw.get("noise", [0.0])],
-                   seeds=[int(v) for v in sw.get("seeds", [0])],
+        for section in ("sweep", "base", "estimator"):
+            if not isinstance(raw.get(section, {}), dict):
+                raise SpecError(f"{source}: [{section}] must be a table")
+        bad = set(sw) - _SECTION_KEYS["sweep"]
+        if bad:
+            raise SpecError(f"{source}: [sweep]: unknown key(s) {sorted(bad)}; expected "
+                            f"{sorted(_SECTION_KEYS['sweep'])}")
+        axes_raw = raw.get("axis", [])
+        if not isinstance(axes_raw, list) or not all(isinstance(a, dict) for a in axes_raw):
+            raise SpecError(f"{source}: [[axis]] must be an array of tables")
+        axes = []
+        for n, a in enumerate(axes_raw, 1):
+            bad = set(a) - _SECTION_KEYS["axis"]
+            if bad:
+                raise SpecError(f"{source}: [[axis]] number {n}: unknown key(s) {sorted(bad)}; "
+                                "expected 'param' and 'values'")
+            axes.append((a.get("param"), a.get("values")))
+        spec = cls(name=sw.get("name", "sweep"),
+                   models=_list(sw.get("models", list(MODELS)), str, "[sweep] models", source),
+                   noise=_list(sw.get("noise", [0.0]), float, "[sweep] noise", source),
+                   seeds=_list(sw.get("seeds", [0]), int, "[sweep] seeds", source),
                    base=dict(raw.get("base", {})), estimator=dict(raw.get("estimator", {})),
-                   axes=[(a.get("param"), a.get("values")) for a in raw.get("axis", [])])
+                   axes=axes)
         spec.validate(source)
         return spec
 
     def validate(self, source: str = "spec") -> None:
-        """Check everything that can be checked before running; raise :class:`SpecError`."""
+        """Check everything that can be checked before running; raise :class:`SpecError`.
+
+        Integral values of integer generator parameters (``height``, ``width``,
+        ``frames``) are converted to ``int`` in place.
+        """
+        if not isinstance(self.name, str) or not self.name.strip():
+            raise SpecError(f"{source}: [sweep] name must be a non-empty string, got "
+                            f"{self.name!r}")
         bad = [m for m in self.models if m not in MODELS]
         if bad or not self.models:
             raise SpecError(f"{source}: unknown or no model(s) {bad}; expected some of {MODELS}")
-        if not self.noise or any(not np.isfinite(n) or n < 0 for n in self.noise):
+        for key, values in (("models", self.models), ("noise", self.noise),
+                            ("seeds", self.seeds)):
+            if len(set(values)) != len(values):
+                raise SpecError(f"{source}: [sweep] {key} repeats a value: {values}")
+        if not self.noise or any(not _real(n) or n < 0 for n in self.noise):
             raise SpecError(f"{source}: noise must be a non-empty list of values >= 0")
-        if not self.seeds or any(s < 0 for s in self.seeds):
+        if not self.seeds or any(not _integer(s) or s < 0 for s in self.seeds):
             raise SpecError(f"{source}: seeds must be a non-empty list of integers >= 0")
         if not self.axes:
             raise SpecError(f"{source}: no [[axis]] to sweep")
-        for param, values in self.axes:
+        swept = [p for p, _ in self.axes]
+        for i, (param, values) in enumerate(self.axes):
             if param not in _SWEEPABLE:
                 raise SpecError(f"{source}: unknown parameter {param!r}; sweepable: "
                                 f"{sorted(_SWEEPABLE)}")
+            if swept.count(param) > 1:
+                raise SpecError(f"{source}: parameter {param!r} has more than one [[axis]]; "
+                                "give it one axis with all its values")
             if not isinstance(values, list) or not values:
                 raise SpecError(f"{source}: axis {param!r} has an empty or missing 'values' list")
-            if len(set(values)) != len(values):
+            self.axes[i] = (param, [_value(param, v, f"axis {param!r}", source)
+                                    for v in values])
+            if len(set(self.axes[i][1])) != len(values):
                 raise SpecError(f"{source}: axis {param!r} repeats values")
+        for key in ("noise", "seed"):
+            if key in self.base:
+                raise SpecError(f"{source}: [base] {key} is set by [sweep] "
+                                f"{'noise' if key == 'noise' else 'seeds'}; remove it from "
+                                "[base]")
+        overridden = sorted(set(self.base) & set(swept))
+        if overridden:
+            raise SpecError(f"{source}: [base] sets {overridden}, which an [[axis]] sweeps; "
+                            "remove it from [base]")
+        known = {f.name for f in fields(SinusoidParams)}
+        unknown = sorted(set(self.base) - known)
+        if unknown:
+            raise SpecError(f"{source}: [base]: unknown sinusoid parameter(s) {unknown}")
+        self.base = {k: _value(k, v, "[base]", source) for k, v in self.base.items()}
         try:
             base = SinusoidParams().replace(**self.base)
         except (TypeError, ValueError) as exc:
             raise SpecError(f"{source}: [base]: {exc}") from None
         try:
             EstimatorSettings(**self.estimator)
-        except TypeError as exc:
+        except (TypeError, InputError) as exc:
             raise SpecError(f"{source}: [estimator]: {exc}") from None
         for p in self.points():
+            params = self.params(p, base)
+            _check_size(params, f"{source}: {p.param} = {p.value}")
             try:
-                check_params(self.params(p, base))
+                check_params(params)
             except (TypeError, ValueError) as exc:
                 raise SpecError(f"{source}: {p.param} = {p.value}: {exc}") from None
 
@@ -152,8 +236,67 @@ class SweepSpec:
 
     def params(self, point: Point, base: SinusoidParams | None = None) -> SinusoidParams:
         base = base or SinusoidParams().replace(**self.base)
-        return base.replace(**{point.param: point.value, "noise": point.noise,
-                               "seed": point.seed})
+        value = int(point.value) if point.param in _INTEGER else point.value
+        return base.replace(**{point.param: value, "noise": point.noise, "seed": point.seed})
+
+    def as_dict(self) -> dict:
+        """The spec as plain data (what the provenance sidecar and the resume key record)."""
+        return {"name": self.name, "models": list(self.models), "noise": list(self.noise),
+                "seeds": list(self.seeds), "base": dict(self.base),
+                "estimator": dict(self.estimator),
+                "axes": [{"param": p, "values": list(v)} for p, v in self.axes]}
+
+
+def _real(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
+
+
+def _integer(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _list(values, kind, what: str, source: str) -> list:
+    """A spec list of ``kind`` (str, float or int), or a SpecError naming the key."""
+    if not isinstance(values, list):
+        raise SpecError(f"{source}: {what} must be a list, got {values!r}")
+    out = []
+    for v in values:
+        if kind is str and isinstance(v, str):
+            out.append(v)
+        elif kind is float and _real(v):
+            out.append(float(v))
+        elif kind is int and (_integer(v) or (_real(v) and float(v).is_integer())):
+            out.append(int(v))
+        else:
+            raise SpecError(f"{source}: {what} must hold {kind.__name__} values, got {v!r}")
+    return out
+
+
+def _value(param: str, v, what: str, source: str):
+    """A generator parameter's value from a spec: numbers only, integral for sizes."""
+    if isinstance(v, list) and param in ("grid", "spacing"):
+        return [_value(param + "[]", x, what, source) for x in v]
+    if not _real(v):
+        raise SpecError(f"{source}: {what}: {param} must be a finite number, got {v!r}")
+    if param in _INTEGER or param == "grid[]":
+        if not float(v).is_integer():
+            raise SpecError(f"{source}: {what}: {param} must be an integer, got {v!r}")
+        return int(v)
+    return float(v)
+
+
+def _check_size(p: SinusoidParams, where: str) -> None:
+    """Refuse a point whose volume would not fit in this machine's memory."""
+    Sy, Sx = p.grid
+    need = 8 * p.frames * Sy * Sx * p.height * p.width
+    try:
+        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return
+    if need > 0.25 * have:
+        raise SpecError(f"{where}: the volume ({p.frames} x {Sy} x {Sx} x {p.height} x "
+                        f"{p.width}) needs {need / 2**30:.1f} GiB, more than a quarter of "
+                        f"this machine's {have / 2**30:.1f} GiB")
 
 
 def shipped_specs() -> dict[str, Path]:
@@ -189,20 +332,40 @@ def resolve_spec(spec) -> Path:
 
 
 def _code_fingerprint() -> str:
-    """Hash of the numerics' source: a part made by other code is not reused."""
+    """Hash of the source of every module a row depends on (:data:`_ROW_SOURCES`): a part
+    made by other code is never reused."""
     import importlib
 
     h = hashlib.sha1()
-    for pkg in _SOURCES:
-        folder = Path(importlib.import_module(f"gridflow.{pkg}").__file__).parent
-        for f in sorted(folder.glob("*.py")):
+    for name in _ROW_SOURCES:
+        mod = importlib.import_module(name)
+        path = Path(mod.__file__)
+        files = sorted(path.parent.glob("*.py")) if path.name == "__init__.py" else [path]
+        for f in files:
+            h.update(f.name.encode())
             h.update(f.read_bytes())
     return h.hexdigest()[:12]
 
 
-def _point_key(spec: SweepSpec, point: Point, fingerprint: str) -> str:
-    blob = json.dumps({"point": point.__dict__, "base": spec.base, "est": spec.estimator,
-                       "models": spec.models, "code": fingerprint}, sort_keys=True)
+def _versions() -> dict:
+    """Versions of Python and the libraries the numbers pass through."""
+    import platform
+
+    import numba
+    import scipy
+
+    from gridflow import __version__
+
+    return {"python": platform.python_version(), "gridflow": __version__,
+            "numpy": np.__version__, "scipy": scipy.__version__, "numba": numba.__version__,
+            "pandas": pd.__version__}
+
+
+def _point_key(spec: SweepSpec, point: Point, fingerprint: str, versions: dict) -> str:
+    """Name of a point's part: everything that makes its rows (the whole spec, the point,
+    the code and the library versions)."""
+    blob = json.dumps({"point": point.__dict__, "spec": spec.as_dict(), "code": fingerprint,
+                       "versions": versions}, sort_keys=True)
     return hashlib.sha1(blob.encode()).hexdigest()[:16]
 
 
@@ -242,11 +405,47 @@ def _diff_json(values: dict, defaults: dict) -> str:
     return json.dumps(diff, sort_keys=True, separators=(",", ":"))
 
 
-def _run_to_part(spec: SweepSpec, point: Point, part: str) -> str:
-    df = run_point(spec, point)
+def _write_part(df: pd.DataFrame, part) -> None:
     with atomic_write(part, "w") as fh:
         df.to_csv(fh, index=False)
+
+
+def _run_to_part(spec: SweepSpec, point: Point, part: str) -> str:
+    _write_part(run_point(spec, point), part)
     return part
+
+
+def _worker_init(parent: int) -> None:
+    """Start-up of a pool worker: Ctrl-C is the parent's to handle (it ends the workers),
+    and a worker dies with its parent even when the parent is killed with SIGKILL."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        PR_SET_PDEATHSIG = 1
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent:       # the parent died before the line above took effect
+        os._exit(1)
+
+
+@contextmanager
+def _signals_raise():
+    """SIGTERM raises in the main thread like Ctrl-C, so both stop a sweep the same way."""
+    def on_term(signum, frame):
+        raise _Terminated()
+
+    try:
+        old = signal.signal(signal.SIGTERM, on_term)
+    except ValueError:           # not the main thread: leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 @contextmanager
@@ -282,15 +481,18 @@ def run_sweep(spec: SweepSpec, output, *, workers: int | None = None, progress: 
     ----------
     spec : SweepSpec
     output : path
-        CSV to write (atomically, at the end).  Finished points are kept meanwhile in
-        ``<output>.parts/`` and reused if the sweep is run again after an interruption.
+        CSV to write (atomically, at the end), with the provenance sidecar
+        ``<output>.json``.  Finished points are kept meanwhile in ``<output>.parts/`` and
+        reused if the sweep is run again after an interruption, as long as the spec, the
+        code of every module a row depends on and the library versions are the same
+        (they name the part); anything else is recomputed.
     workers : int, optional
         Processes on this machine (default: all cores).  1 runs in-process.
     progress : bool
         Show a progress bar (tqdm) on stderr.
-    executor : concurrent.futures.Executor-like, optional
-        Run the points there instead (e.g. a ``dask.distributed.Client``); it must
-        offer ``submit`` and futures usable with ``as_completed``.
+    executor : dask.distributed.Client, optional
+        Run the points there instead.  The results come back to this process, which
+        alone writes the parts: the workers need no shared disk.
     keep_parts : bool
         Keep the part files after assembling.
 
@@ -298,44 +500,61 @@ def run_sweep(spec: SweepSpec, output, *, workers: int | None = None, progress: 
     -------
     pandas.DataFrame
         The rows written.
+
+    Raises
+    ------
+    SweepInterrupted
+        On SIGINT (Ctrl-C) or SIGTERM: running points are stopped within seconds, the
+        finished ones are kept.
     """
     from tqdm import tqdm
 
-    output = Path(output)
+    from gridflow.io import check_output
+
+    output = check_output(output, suffixes=".csv", what="sweep output")
+    sidecar = check_output(output.with_suffix(".json"), suffixes=".json",
+                           what="sweep provenance")
     parts_dir = output.parent / (output.name + ".parts")
+    if parts_dir.exists() and not parts_dir.is_dir():
+        raise SpecError(f"{parts_dir}: exists and is not a folder (the sweep keeps its "
+                        "finished points there)")
     parts_dir.mkdir(parents=True, exist_ok=True)
-    fp = _code_fingerprint()
+    fp, versions = _code_fingerprint(), _versions()
     todo, parts = [], []
     for p in spec.points():
-        part = str(parts_dir / f"{_point_key(spec, p, fp)}.csv")
+        part = str(parts_dir / f"{_point_key(spec, p, fp, versions)}.csv")
         parts.append(part)
         if not Path(part).exists():
             todo.append((p, part))
+    stale = {f.name for f in parts_dir.glob("*.csv")} - {Path(q).name for q in parts}
+    if stale and progress:
+        print(f"sweep {spec.name}: {len(stale)} part(s) in {parts_dir} were made by another "
+              "spec, code or library version; not reused", file=sys.stderr)
     bar = tqdm(total=len(parts), initial=len(parts) - len(todo), disable=not progress,
                desc=f"sweep {spec.name}", unit="pt")
     workers = workers or os.cpu_count() or 1
     try:
-        if executor is not None:
-            futs = [executor.submit(_run_to_part, spec, p, part) for p, part in todo]
-            _drain(futs, bar, executor)
-        elif workers == 1 or len(todo) <= 1:
-            for p, part in todo:
-                _run_to_part(spec, p, part)
-                bar.update()
-        else:
-            import multiprocessing as mp
-
-            with _single_threaded_blas(), ProcessPoolExecutor(
-                    max_workers=min(workers, len(todo)), mp_context=mp.get_context("spawn")) as ex:
-                futs = [ex.submit(_run_to_part, spec, p, part) for p, part in todo]
-                _drain(futs, bar)
+        with _signals_raise():
+            if executor is not None:
+                _run_dask(executor, spec, todo, bar)
+            elif workers == 1 or len(todo) <= 1:
+                for p, part in todo:
+                    _run_to_part(spec, p, part)
+                    bar.update()
+            else:
+                _run_pool(spec, todo, min(workers, len(todo)), bar)
+    except (KeyboardInterrupt, _Terminated) as exc:
+        bar.close()
+        done = sum(Path(q).exists() for q in parts)
+        name = "SIGTERM" if isinstance(exc, _Terminated) else "SIGINT"
+        raise SweepInterrupted(name, done, len(parts), parts_dir) from None
     finally:
         bar.close()
     df = _order(pd.concat([pd.read_csv(p, keep_default_na=False, na_values=[""])
                            for p in parts], ignore_index=True), spec)
     with atomic_write(output, "w") as fh:
         df.to_csv(fh, index=False, float_format="%.7g")
-    with atomic_write(output.with_suffix(".json"), "w") as fh:
+    with atomic_write(sidecar, "w") as fh:
         json.dump(provenance(spec), fh, indent=1, sort_keys=True)
         fh.write("\n")
     if not keep_parts:
@@ -343,29 +562,53 @@ def run_sweep(spec: SweepSpec, output, *, workers: int | None = None, progress: 
     return df
 
 
+def _run_pool(spec: SweepSpec, todo, workers: int, bar) -> None:
+    """The points in a local process pool; on an interrupt the workers are ended at once."""
+    import multiprocessing as mp
+
+    ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                             initializer=_worker_init, initargs=(os.getpid(),))
+    try:
+        # the workers start during submit, in this (the main) thread: the death signal of
+        # _worker_init is tied to it
+        with _single_threaded_blas():
+            futs = [ex.submit(_run_to_part, spec, p, part) for p, part in todo]
+        for fut in as_completed(futs):
+            fut.result()        # re-raise a worker's error here
+            bar.update()
+    except BaseException:
+        # stop now: drop the queued points and end the running ones (their parts are
+        # written atomically, so a killed point leaves nothing half-written)
+        procs = list((ex._processes or {}).values())
+        ex.shutdown(wait=False, cancel_futures=True)
+        for proc in procs:
+            proc.terminate()
+        for proc in procs:
+            proc.join(timeout=5)
+        raise
+    ex.shutdown(wait=True)
+
+
+def _run_dask(client, spec: SweepSpec, todo, bar) -> None:
+    """The points on a dask cluster; each result comes back here and is written here."""
+    from dask.distributed import as_completed as dask_completed
+
+    futs = {client.submit(run_point, spec, p, pure=False): part for p, part in todo}
+    try:
+        for fut in dask_completed(list(futs)):
+            _write_part(fut.result(), futs[fut])
+            bar.update()
+    except BaseException:
+        client.cancel(list(futs))
+        raise
+
+
 def provenance(spec: SweepSpec) -> dict:
     """What made a sweep CSV: the spec, the full defaults the CSV's JSON columns are
-    relative to, the numerics' code fingerprint and library versions."""
-    import scipy
-
-    return {"spec": {"name": spec.name, "models": spec.models, "noise": spec.noise,
-                     "seeds": spec.seeds, "base": spec.base, "estimator": spec.estimator,
-                     "axes": [{"param": p, "values": v} for p, v in spec.axes]},
+    relative to, the code fingerprint of every module a row depends on and the versions
+    of Python and the libraries."""
+    return {"spec": spec.as_dict(),
             "generator_defaults": SinusoidParams().as_dict(),
             "estimator_defaults": EstimatorSettings().__dict__,
             "code_fingerprint": _code_fingerprint(),
-            "versions": {"numpy": np.__version__, "scipy": scipy.__version__,
-                         "pandas": pd.__version__}}
-
-
-def _drain(futs, bar, executor=None) -> None:
-    if executor is not None and hasattr(executor, "gather"):
-        from dask.distributed import as_completed as dask_completed
-
-        for fut in dask_completed(futs):
-            fut.result()
-            bar.update()
-        return
-    for fut in as_completed(futs):
-        fut.result()        # re-raise a worker's error here
-        bar.update()
+            "versions": _versions()}

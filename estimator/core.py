@@ -7,13 +7,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .filters import FilterPair, get_filter_pair
+from .filters import FILTER_NAMES, FilterPair, get_filter_pair
 from .models import MODELS, get_model
 from .solve import disentangle, null_space
 from .tensor import (camera_time_signals, gaussian_moment_kernels, spatial_signals,
                      structure_tensor, structure_tensor_reference)
 
-__all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models"]
+__all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
+           "METHODS"]
+
+METHODS = ("fast", "grouped", "reference")
 
 
 class InputError(ValueError):
@@ -59,6 +62,33 @@ class EstimatorSettings:
     method: str = "fast"
     slant_correction: bool = True
     band_rows: int | None = None
+
+    def __post_init__(self) -> None:
+        """Refuse settings that are of the wrong type or out of range (InputError naming
+        the setting); checks that need the volume are made by :func:`estimate`."""
+        def integer(v) -> bool:
+            return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+        if isinstance(self.sigma, bool) or not isinstance(self.sigma, (int, float, np.number)) \
+                or not (np.isfinite(self.sigma) and self.sigma > 0):
+            raise InputError(f"sigma must be a positive number of pixels, got {self.sigma!r}")
+        if not (integer(self.window) and self.window >= 3 and self.window % 2 == 1):
+            raise InputError(f"window must be an odd number of taps >= 3, got {self.window!r}")
+        if self.filters not in FILTER_NAMES:
+            raise InputError(f"unknown filter pair {self.filters!r}; filters must be one of "
+                             f"{FILTER_NAMES}")
+        for name in ("temporal_radius", "ref_frame"):
+            v = getattr(self, name)
+            if v is not None and not (integer(v) and v >= 0):
+                raise InputError(f"{name} must be a non-negative integer or None, got {v!r}")
+        if self.method not in METHODS:
+            raise InputError(f"method must be one of {METHODS}, got {self.method!r}")
+        if not isinstance(self.slant_correction, (bool, np.bool_)):
+            raise InputError(f"slant_correction must be true or false, got "
+                             f"{self.slant_correction!r}")
+        if self.band_rows is not None and not (integer(self.band_rows) and self.band_rows >= 1):
+            raise InputError(f"band_rows must be a positive integer or None, got "
+                             f"{self.band_rows!r}")
 
 
 @dataclass
@@ -119,10 +149,15 @@ def _check_volume(volume) -> np.ndarray:
 def _unit_scale(amax: float) -> float:
     """Power of two bringing max|V| near 1.  Estimates do not depend on the volume's scale
     (J scales by c^2); rescaling keeps the products in J clear of overflow (|V| ~ 1e200)
-    and underflow (|V| ~ 1e-300).  A power of two is exact in binary floating point."""
+    and underflow (|V| ~ 1e-300).  A power of two is exact in binary floating point.
+
+    For subnormal volumes (max|V| < 2^-1022) the factor itself, up to 2^1074, is not a
+    float64; it is capped at 2^1023, which still lifts max|V| above 2^-51 — far from
+    underflow in J's products of order max|V|^2 after the rescale."""
     if amax == 0.0 or not np.isfinite(amax):
         return 1.0
-    return float(2.0 ** -np.round(np.log2(amax)))
+    exponent = int(min(1023, -np.round(np.log2(amax))))
+    return float(np.ldexp(1.0, exponent))
 
 
 def _axis_pair(name: str, samples: int, axis: str) -> FilterPair:
@@ -157,13 +192,14 @@ def _prepare(volume, focal_length, camera_spacing, principal_point, s: Estimator
     if principal_point is None:
         cx, cy = (W - 1) / 2.0, (H - 1) / 2.0
     else:
-        cx, cy = (float(v) for v in np.asarray(principal_point, dtype=float).ravel())
-    if not (s.sigma > 0 and np.isfinite(s.sigma)):
-        raise InputError(f"sigma must be positive, got {s.sigma}")
-    if int(s.window) != s.window or s.window < 3 or s.window % 2 == 0:
-        raise InputError(f"window must be an odd number of taps >= 3, got {s.window}")
-    if s.method not in ("fast", "grouped", "reference"):
-        raise InputError(f"method must be 'fast', 'grouped' or 'reference', got {s.method!r}")
+        try:
+            pp = np.asarray(principal_point, dtype=float).ravel()
+        except (TypeError, ValueError):
+            pp = np.array([np.nan])
+        if pp.size != 2 or not np.all(np.isfinite(pp)):
+            raise InputError(f"principal_point must be two finite numbers (cx, cy) in "
+                             f"pixels, got {principal_point!r}")
+        cx, cy = float(pp[0]), float(pp[1])
     spatial = get_filter_pair(s.filters)
     cam_x = _axis_pair(s.filters, Sx, "cameras along x")
     cam_y = _axis_pair(s.filters, Sy, "cameras along y") if Sy > 1 else None

@@ -28,34 +28,133 @@ import numpy as np
 
 from .volume import GridVolume
 
-__all__ = ["save_volume", "load_volume", "save_estimate", "load_estimate", "atomic_write"]
+__all__ = ["save_volume", "load_volume", "save_estimate", "load_estimate", "atomic_write",
+           "check_output", "OutputError", "check_input_file"]
+
+
+class OutputError(ValueError):
+    """An output path that must not be written; raised before anything is written."""
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_output(path, *, suffixes, inputs=(), what: str = "output") -> Path:
+    """Check an output path before any work is done; every command that writes uses it.
+
+    Refused (with :class:`OutputError`, nothing written): a name whose extension is not
+    one of ``suffixes`` (the format written), an existing path that is not a regular file
+    (a folder, a device such as ``/dev/null``, a FIFO, a symbolic link: the atomic rename
+    would replace it), a path that is one of ``inputs`` (no output replaces an input), and
+    a parent that exists but is not a folder.
+
+    Parameters
+    ----------
+    path : path-like
+    suffixes : str or tuple of str
+        Allowed extensions, with the dot (``".npz"``); ``None`` for a folder output.
+    inputs : iterable of path-like
+        The command's inputs.
+    what : str
+        What the path is, for the message (``"-o"``, ``"--csv"``).
+
+    Returns
+    -------
+    pathlib.Path
+    """
+    path = Path(path)
+    if suffixes is None:                    # an output folder
+        if path.exists() and not path.is_dir():
+            raise OutputError(f"{what} {path}: exists and is not a folder")
+        return path
+    suffixes = (suffixes,) if isinstance(suffixes, str) else tuple(suffixes)
+    if path.suffix.lower() not in suffixes:
+        raise OutputError(f"{what} {path}: expected a {' or '.join(suffixes)} file name "
+                          f"(the format written), got {path.suffix or 'no extension'!r}")
+    if path.is_symlink() or (path.exists() and not path.is_file()):
+        raise OutputError(f"{what} {path}: exists and is not a regular file; refusing to "
+                          "replace it")
+    for inp in inputs:
+        inp = Path(inp)
+        if _same_file(path, inp) or path.resolve() == inp.resolve():
+            raise OutputError(f"{what} {path}: is an input of this command ({inp}); "
+                              "choose another output name")
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise OutputError(f"{what} {path}: {parent} is not a folder")
+    return path
+
+
+def check_input_file(path, what: str = "input") -> Path:
+    """An input that must be an existing regular file (a FIFO would block reading)."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{what} {path}: no such file")
+    if not path.is_file():
+        raise ValueError(f"{what} {path}: not a regular file")
+    return path
 
 
 class atomic_write:
-    """Context manager yielding a binary file whose content replaces ``path`` on success."""
+    """Context manager yielding a file whose content replaces ``path`` on success.
+
+    The content goes to a temporary file beside ``path`` that is renamed over it only when
+    the block succeeds; on any failure (also a failed close or rename) the temporary file
+    is removed and ``path`` is untouched.  An existing ``path`` that is not a regular file
+    is refused (see :func:`check_output`).
+    """
 
     def __init__(self, path, mode: str = "wb"):
         self.path = Path(path)
         self.mode = mode
 
     def __enter__(self):
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        if self.path.is_symlink() or (self.path.exists() and not self.path.is_file()):
+            raise OutputError(f"{self.path}: exists and is not a regular file; refusing to "
+                              "replace it")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except (FileExistsError, NotADirectoryError):
+            raise OutputError(f"{self.path}: its folder {self.path.parent} cannot be made "
+                              "(a file of that name is in the way)") from None
         fd, self.tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp",
                                         dir=self.path.parent)
-        self.fh = os.fdopen(fd, self.mode)
+        try:
+            self.fh = os.fdopen(fd, self.mode)
+        except BaseException:
+            os.close(fd)
+            os.unlink(self.tmp)
+            raise
         return self.fh
 
     def __exit__(self, exc_type, exc, tb):
-        self.fh.close()
-        if exc_type is None:
-            # mkstemp makes the file private (0600); give it the usual umask permissions
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(self.tmp, 0o666 & ~umask)
-            os.replace(self.tmp, self.path)
-        else:
-            os.unlink(self.tmp)
+        try:
+            self.fh.close()
+            if exc_type is None:
+                # mkstemp makes the file private (0600); give it the usual umask permissions
+                umask = os.umask(0)
+                os.umask(umask)
+                os.chmod(self.tmp, 0o666 & ~umask)
+                os.replace(self.tmp, self.path)
+                return False
+        except BaseException:
+            _unlink(self.tmp)
+            raise
+        _unlink(self.tmp)
         return False
+
+
+def _unlink(path) -> None:
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
 
 
 def save_volume(path, data: GridVolume, *, compress: bool = False) -> None:
@@ -72,13 +171,26 @@ def save_volume(path, data: GridVolume, *, compress: bool = False) -> None:
 
 
 def _open_npz(path):
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such file")
+    path = check_input_file(path)
     try:
         return np.load(path, allow_pickle=False)
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
         raise ValueError(f"{path}: not a readable .npz file ({exc})") from exc
+
+
+_VOLUME_KEYS = {"volume", "focal_length", "camera_spacing", "principal_point", "meta"}
+
+
+def _numbers(z, key: str, path, n: int) -> np.ndarray:
+    """``n`` finite numbers stored under ``key``, or a ValueError naming file and key."""
+    try:
+        arr = np.asarray(z[key], dtype=float).ravel()
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: '{key}' must hold numbers ({exc})") from None
+    if arr.size != n or not np.all(np.isfinite(arr)):
+        want = "a finite scalar" if n == 1 else f"{n} finite numbers"
+        raise ValueError(f"{path}: '{key}' must be {want}, got {arr.tolist()}")
+    return arr
 
 
 def load_volume(path) -> GridVolume:
@@ -105,17 +217,18 @@ def load_volume(path) -> GridVolume:
             raise ValueError(f"{path}: cannot read 'volume' ({exc})") from exc
         if vol.ndim != 5:
             raise ValueError(f"{path}: 'volume' must have shape (T, Sy, Sx, H, W); got {vol.shape}")
-        f = np.asarray(z["focal_length"], float)
-        sp = np.asarray(z["camera_spacing"], float).ravel()
-        if f.size != 1:
-            raise ValueError(f"{path}: 'focal_length' must be a scalar, got shape {f.shape}")
-        if sp.size != 2:
-            raise ValueError(f"{path}: 'camera_spacing' must be [ds_x, ds_y], got {sp.tolist()}")
+        unknown = sorted(k for k in keys - _VOLUME_KEYS if not k.startswith("truth_"))
+        if unknown:
+            raise ValueError(f"{path}: unknown array(s) {unknown}; a volume file holds "
+                             f"{sorted(_VOLUME_KEYS)} and truth_<name> maps")
+        f = _numbers(z, "focal_length", path, 1)
+        sp = _numbers(z, "camera_spacing", path, 2)
+        if not f[0] > 0:
+            raise ValueError(f"{path}: 'focal_length' must be a positive number of pixels, "
+                             f"got {f[0]}")
         H, W = vol.shape[-2:]
         if "principal_point" in keys:
-            pp = np.asarray(z["principal_point"], float).ravel()
-            if pp.size != 2:
-                raise ValueError(f"{path}: 'principal_point' must be [cx, cy], got {pp.tolist()}")
+            pp = _numbers(z, "principal_point", path, 2)
             pp = (float(pp[0]), float(pp[1]))
         else:
             pp = ((W - 1) / 2.0, (H - 1) / 2.0)
@@ -126,8 +239,18 @@ def load_volume(path) -> GridVolume:
                 if arr.shape != (H, W):
                     raise ValueError(f"{path}: '{k}' has shape {arr.shape}, expected {(H, W)}")
                 truth[k[6:]] = arr
-        meta = json.loads(str(z["meta"])) if "meta" in keys else {}
-    return GridVolume(vol, float(f), (float(sp[0]), float(sp[1])), pp, truth, meta)
+        meta = _meta(z, path) if "meta" in keys else {}
+    return GridVolume(vol, float(f[0]), (float(sp[0]), float(sp[1])), pp, truth, meta)
+
+
+def _meta(z, path) -> dict:
+    try:
+        meta = json.loads(str(z["meta"]))
+    except (json.JSONDecodeError, ValueError) as exc:
+        raise ValueError(f"{path}: 'meta' is not a JSON string ({exc})") from None
+    if not isinstance(meta, dict):
+        raise ValueError(f"{path}: 'meta' must hold a JSON object")
+    return meta
 
 
 def save_estimate(path, est) -> None:
@@ -146,5 +269,9 @@ def load_estimate(path) -> tuple[dict[str, np.ndarray], np.ndarray, dict]:
             raise ValueError(f"{path}: not an estimate file (no 'interior' array)")
         maps = {k: z[k] for k in z.files if k not in ("interior", "meta")}
         interior = z["interior"].astype(bool)
-        meta = json.loads(str(z["meta"])) if "meta" in z.files else {}
+        meta = _meta(z, path) if "meta" in z.files else {}
+        shapes = {k: v.shape for k, v in maps.items() if v.shape != interior.shape}
+        if interior.ndim != 2 or shapes:
+            raise ValueError(f"{path}: every map must have the shape of 'interior' "
+                             f"{interior.shape}; these differ: {shapes}")
     return maps, interior, meta

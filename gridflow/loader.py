@@ -22,6 +22,7 @@ Intensities must be linear in radiance (the brightness model assumes it).
 from __future__ import annotations
 
 import json
+import os
 import re
 import string
 from pathlib import Path
@@ -39,40 +40,116 @@ class LoaderError(ValueError):
     """A camera-grid folder that cannot be loaded; the message names file and problem."""
 
 
+_REQUIRED = ("focal_length", "camera_spacing", "grid", "frames", "pattern")
+_OPTIONAL = ("reference_camera", "reference_frame", "principal_point", "truth", "units",
+             "source")
+# a format spec of a pattern field: at most a zero-padded width and a 'd' ({t:02d})
+_FIELD_SPEC = re.compile(r"0?[1-9]?d?")
+# more images than this in one folder is not a camera-grid sequence this loader can hold
+MAX_IMAGES = 1_000_000
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+
+
+def _numbers(m: dict, key: str, path: Path, n: int) -> list[float]:
+    v = m[key]
+    if not (isinstance(v, list) and len(v) == n and all(_is_number(x) for x in v)):
+        raise LoaderError(f"{path}: '{key}' must be a list of {n} finite numbers, got {v!r}")
+    return [float(x) for x in v]
+
+
+def _inside(folder: Path, rel: str, path: Path, key: str) -> Path:
+    """``folder / rel``, refused unless it stays inside the folder."""
+    p = folder / rel
+    if not p.resolve().is_relative_to(folder.resolve()):
+        raise LoaderError(f"{path}: '{key}' names {rel!r}, which lies outside the folder")
+    return p
+
+
 def _read_manifest(folder: Path) -> dict:
     path = folder / "grid.json"
     if not path.exists():
         raise LoaderError(f"{folder}: no grid.json manifest (see the README: camera-grid folders)")
+    if not path.is_file():
+        raise LoaderError(f"{path}: not a regular file")
     try:
         m = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise LoaderError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(m, dict):
         raise LoaderError(f"{path}: must hold a JSON object")
-    missing = {"focal_length", "camera_spacing", "grid", "frames", "pattern"} - set(m)
+    missing = [k for k in _REQUIRED if k not in m]
     if missing:
-        raise LoaderError(f"{path}: missing key(s) {sorted(missing)}")
+        raise LoaderError(f"{path}: missing key(s) {missing}")
+    unknown = sorted(set(m) - set(_REQUIRED) - set(_OPTIONAL))
+    if unknown:
+        raise LoaderError(f"{path}: unknown key(s) {unknown}; expected "
+                          f"{list(_REQUIRED) + list(_OPTIONAL)}")
+    g = m["grid"]
+    if not (isinstance(g, list) and len(g) == 2 and all(_is_int(v) and v >= 1 for v in g)):
+        raise LoaderError(f"{path}: 'grid' must be [Sy, Sx], two integers >= 1, got {g!r}")
+    sy, sx = g
+    if sy % 2 == 0 or sx % 2 == 0:
+        raise LoaderError(f"{path}: 'grid' {g} has an even size; the reference camera is the "
+                          "centre of an odd grid")
+    frames = m["frames"]
+    if not (_is_int(frames) and frames >= 1):
+        raise LoaderError(f"{path}: 'frames' must be an integer >= 1, got {frames!r}")
+    if sy * sx * frames > MAX_IMAGES:
+        raise LoaderError(f"{path}: 'grid' {g} x 'frames' {frames} names {sy * sx * frames} "
+                          f"images, more than {MAX_IMAGES}")
+    f = m["focal_length"]
+    if not (_is_number(f) and f > 0):
+        raise LoaderError(f"{path}: 'focal_length' must be a positive number of pixels, "
+                          f"got {f!r}")
+    ds = _numbers(m, "camera_spacing", path, 2)
+    if ds[0] <= 0 or (sy > 1 and ds[1] <= 0) or ds[1] < 0:
+        raise LoaderError(f"{path}: 'camera_spacing' {ds} must be positive (ds_y may be 0 "
+                          "only on a 1-D grid)")
+    pattern = m["pattern"]
+    if not isinstance(pattern, str) or not pattern:
+        raise LoaderError(f"{path}: 'pattern' must be a file name pattern, got {pattern!r}")
     try:
-        sy, sx = (int(v) for v in m["grid"])
-        frames = int(m["frames"])
-        f = float(m["focal_length"])
-        ds = [float(v) for v in m["camera_spacing"]]
-    except (TypeError, ValueError) as exc:
-        raise LoaderError(f"{path}: grid, frames, focal_length or camera_spacing malformed "
-                          f"({exc})") from None
-    if sy < 1 or sx < 1 or frames < 1 or len(ds) != 2 or not f > 0:
-        raise LoaderError(f"{path}: grid {m['grid']}, frames {frames}, focal_length {f} or "
-                          f"camera_spacing {m['camera_spacing']} out of range")
-    fields = {name for _, name, _, _ in string.Formatter().parse(m["pattern"]) if name}
-    if fields != {"t", "sy", "sx"}:
-        raise LoaderError(f"{path}: pattern {m['pattern']!r} must use the fields {{t}}, "
-                          "{sy} and {sx}")
+        parsed = [(name, spec, conv) for _, name, spec, conv in
+                  string.Formatter().parse(pattern) if name is not None]
+    except ValueError as exc:
+        raise LoaderError(f"{path}: 'pattern' {pattern!r} is malformed ({exc})") from None
+    names = {name for name, _, _ in parsed}
+    if names != {"t", "sy", "sx"}:
+        raise LoaderError(f"{path}: 'pattern' {pattern!r} must use the fields {{t}}, {{sy}} "
+                          "and {sx}, and no others")
+    for name, spec, conv in parsed:
+        if conv or not _FIELD_SPEC.fullmatch(spec or ""):
+            raise LoaderError(f"{path}: 'pattern' field {{{name}:{spec}}} is not allowed; use "
+                              "{t}, {t:d} or a zero-padded width such as {t:02d}")
     rc = m.get("reference_camera")
-    if rc is not None and [int(v) for v in rc] != [(sy - 1) // 2, (sx - 1) // 2]:
-        raise LoaderError(f"{path}: reference_camera {rc} is not the centre camera "
+    if rc is not None and rc != [(sy - 1) // 2, (sx - 1) // 2]:
+        raise LoaderError(f"{path}: 'reference_camera' {rc!r} is not the centre camera "
                           f"[{(sy - 1) // 2}, {(sx - 1) // 2}]; gridflow estimates at the "
                           "centre of an odd grid")
-    m.update(_grid=(sy, sx), _frames=frames, _f=f, _ds=ds)
+    rf = m.get("reference_frame")
+    if rf is not None and not (_is_int(rf) and 0 <= rf < frames):
+        raise LoaderError(f"{path}: 'reference_frame' must be a frame index 0..{frames - 1}, "
+                          f"got {rf!r}")
+    pp = None
+    if m.get("principal_point") is not None:
+        pp = _numbers(m, "principal_point", path, 2)
+    truth = m.get("truth") or {}
+    if not (isinstance(truth, dict)
+            and all(isinstance(k, str) and isinstance(v, str) for k, v in truth.items())):
+        raise LoaderError(f"{path}: 'truth' must map quantity names to .npy file names, "
+                          f"got {truth!r}")
+    truth = {q: _inside(folder, rel, path, f"truth.{q}") for q, rel in truth.items()}
+    for key, kind in (("units", str), ("source", dict)):
+        if m.get(key) is not None and not isinstance(m[key], kind):
+            raise LoaderError(f"{path}: '{key}' must be a {kind.__name__}, got {m[key]!r}")
+    m.update(_grid=(sy, sx), _frames=frames, _f=float(f), _ds=ds, _pp=pp, _truth=truth)
     return m
 
 
@@ -108,27 +185,47 @@ def _read_image(path: Path) -> tuple[np.ndarray, str]:
 def load_folder(folder) -> GridVolume:
     """Read a camera-grid folder into a volume ``(T, Sy, Sx, H, W)``.
 
+    Every key of ``grid.json`` is checked before any image is read, and the manifest is
+    checked against the folder before the volume is allocated.
+
     Raises
     ------
     LoaderError
-        Missing manifest or keys, missing or extra images, mixed sizes or types, a
-        manifest that contradicts the files, unreadable files or truth maps.
+        Missing manifest or keys, unknown keys, values of the wrong type or range, a
+        pattern that names one file twice or a path outside the folder, missing or extra
+        images, files that are not regular files, mixed sizes or types, a volume larger
+        than this machine's memory, unreadable files or truth maps.
     """
     folder = Path(folder)
     if not folder.is_dir():
         raise LoaderError(f"{folder}: not a folder")
     m = _read_manifest(folder)
     (Sy, Sx), T = m["_grid"], m["_frames"]
-    expected = {m["pattern"].format(t=t, sy=i, sx=j): (t, i, j)
-                for t in range(T) for i in range(Sy) for j in range(Sx)}
-    missing = sorted(n for n in expected if not (folder / n).exists())
+    manifest = folder / "grid.json"
+    expected = {}
+    for t in range(T):
+        for i in range(Sy):
+            for j in range(Sx):
+                name = m["pattern"].format(t=t, sy=i, sx=j)
+                if name in expected:
+                    raise LoaderError(
+                        f"{manifest}: 'pattern' {m['pattern']!r} is ambiguous: frame {t}, "
+                        f"camera ({i}, {j}) and frame {expected[name][0]}, camera "
+                        f"{expected[name][1:]} both name {name!r} (pad the fields, e.g. "
+                        "{t:02d})")
+                expected[name] = (t, i, j)
+    paths = {name: _inside(folder, name, manifest, "pattern") for name in expected}
+    missing = sorted(n for n, p in paths.items() if not p.exists())
     if missing:
         raise LoaderError(f"{folder}: {len(missing)} image(s) named by the manifest are "
                           f"missing, e.g. {missing[:3]} (grid {Sy}x{Sx}, {T} frames)")
+    irregular = sorted(n for n, p in paths.items() if not p.is_file())
+    if irregular:
+        raise LoaderError(f"{folder}: {len(irregular)} image(s) are not regular files, e.g. "
+                          f"{irregular[:3]}")
     # Files that look like they belong to the sequence but are not in the grid: the
     # manifest contradicts the folder (wrong grid size or frame count).
-    regex = re.escape(m["pattern"]).replace(r"\{t:02d\}", r"\d+")
-    regex = re.sub(r"\\\{(t|sy|sx)(?::[^}]*)?\\\}", r"\\d+", regex)
+    regex = re.sub(r"\\\{(t|sy|sx)(?::[^}]*)?\\\}", r"\\d+", re.escape(m["pattern"]))
     extra = sorted(p.name for p in folder.iterdir()
                    if p.suffix.lower() in _IMAGE_EXT and p.name not in expected
                    and re.fullmatch(regex, p.name))
@@ -138,8 +235,9 @@ def load_folder(folder) -> GridVolume:
     vol = None
     first_kind = first_name = None
     for name, (t, i, j) in expected.items():
-        img, kind = _read_image(folder / name)
+        img, kind = _read_image(paths[name])
         if vol is None:
+            _check_memory(folder, (T, Sy, Sx) + img.shape)
             vol = np.empty((T, Sy, Sx) + img.shape)
             first_kind, first_name = kind, name
         if img.shape != vol.shape[3:]:
@@ -150,11 +248,12 @@ def load_folder(folder) -> GridVolume:
                               f"{first_name} ({first_kind})")
         vol[t, i, j] = img
     H, W = vol.shape[3:]
-    pp = m.get("principal_point")
-    pp = ((W - 1) / 2.0, (H - 1) / 2.0) if pp is None else (float(pp[0]), float(pp[1]))
+    pp = m["_pp"]
+    pp = ((W - 1) / 2.0, (H - 1) / 2.0) if pp is None else (pp[0], pp[1])
     truth = {}
-    for q, rel in (m.get("truth") or {}).items():
-        p = folder / rel
+    for q, p in m["_truth"].items():
+        if not p.is_file():
+            raise LoaderError(f"{p}: truth map '{q}' is missing or not a regular file")
         try:
             arr = np.load(p, allow_pickle=False)
         except (OSError, ValueError) as exc:
@@ -165,3 +264,16 @@ def load_folder(folder) -> GridVolume:
     meta = {"folder": str(folder), "pixel_type": first_kind,
             "ref_frame": m.get("reference_frame"), "source": m.get("source")}
     return GridVolume(vol, m["_f"], (m["_ds"][0], m["_ds"][1]), pp, truth, meta)
+
+
+def _check_memory(folder: Path, shape: tuple) -> None:
+    """Refuse a volume that would not fit in this machine's memory (float64)."""
+    need = 8 * int(np.prod(shape, dtype=np.int64))
+    try:
+        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return
+    if need > 0.8 * have:
+        raise LoaderError(f"{folder}: the volume {shape} needs {need / 2**30:.1f} GiB as "
+                          f"float64, more than this machine's memory allows "
+                          f"({have / 2**30:.1f} GiB)")

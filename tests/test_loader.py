@@ -106,7 +106,7 @@ def test_unreadable_image(tmp_path):
     ('{"focal_length": 1, "camera_spacing": [1, 1], "grid": [3, 3], "frames": 2, '
      '"pattern": "img{t}.png"}', "must use the fields"),
     ('{"focal_length": -1, "camera_spacing": [1, 1], "grid": [3, 3], "frames": 2, '
-     '"pattern": "{t}{sy}{sx}.png"}', "out of range"),
+     '"pattern": "{t}{sy}{sx}.png"}', "'focal_length' must be a positive number"),
 ])
 def test_bad_manifest(tmp_path, content, match):
     (tmp_path / "grid.json").write_text(content)

@@ -98,8 +98,9 @@ def test_interrupted_sweep_leaves_no_csv_and_resumes(tmp_path, monkeypatch):
     monkeypatch.setattr(sweep_mod, "run_point", flaky)
     out = tmp_path / "s.csv"
     out.write_text("old result\n")
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(sweep_mod.SweepInterrupted, match="2 of 6 points finished") as info:
         run_sweep(spec, out, workers=1, progress=False)
+    assert info.value.signal_name == "SIGINT" and info.value.done == 2
     assert out.read_text() == "old result\n"             # the old file is untouched
     parts = list((tmp_path / "s.csv.parts").glob("*.csv"))
     assert len(parts) == 2                               # the finished points survived

@@ -142,10 +142,14 @@ def cmd_evaluate(a) -> int:
         raise ValueError(f"{a.estimate} and {a.volume} share no quantity names")
     print(f"model {meta.get('model', '?')}: Eq. 22 over interior pixels with finite truth"
           + (" and the truth's own interior mask" if own is not None else ""))
-    print(f"{'quantity':<9} {'Q_rel':>11} {'Q_abs':>11} {'pixels':>8} {'invalid':>8}")
+    # Eq. 22: the relative error where the truth is non-zero (and of one sign), else the
+    # absolute error; a relative error that is undefined is shown as '-'
+    print(f"{'quantity':<9} {'Eq. 22':>11} {'measure':>7} {'Q_rel':>11} {'Q_abs':>11} "
+          f"{'pixels':>8} {'invalid':>8}")
     for r in rows:
-        print(f"{r['quantity']:<9} {r['q_rel']:>11.4g} {r['q_abs']:>11.4g} "
-              f"{r['n_pixels']:>8d} {r['n_invalid']:>8d}")
+        rel = f"{r['q_rel']:>11.4g}" if np.isfinite(r["q_rel"]) else f"{'-':>11}"
+        print(f"{r['quantity']:<9} {r['q']:>11.4g} {r['measure']:>7} {rel} "
+              f"{r['q_abs']:>11.4g} {r['n_pixels']:>8d} {r['n_invalid']:>8d}")
     return 0
 
 

@@ -46,7 +46,7 @@ _SWEEPABLE = {f.name for f in fields(SinusoidParams)} - {"grid", "spacing", "see
 _INTEGER = {f.name for f in fields(SinusoidParams) if f.type in ("int", int)}
 # everything a row of the CSV depends on: the code of these modules (besides the spec and
 # the library versions) keys a finished point, so a changed module is never mixed in
-_ROW_SOURCES = ("gridflow.estimator", "gridflow.generators", "gridflow.volume",
+_ROW_SOURCES = ("gridflow.estimator", "gridflow.generators", "gridflow.volume", "gridflow.io",
                 "gridflow.bench.sweep", "gridflow.bench.metrics")
 _SECTION_KEYS = {"sweep": {"name", "models", "noise", "seeds"}, "base": None,
                  "estimator": None, "axis": {"param", "values"}}

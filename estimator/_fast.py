@@ -81,7 +81,7 @@ MAX_ITER = 8
 _SHIFT = 1e-13
 _CONV = 1e-13
 _CHUNKS = 256
-_N_KERNELS = 5          # functions compiled with cache=True below
+_N_KERNELS = 6          # functions compiled with cache=True below
 
 
 def packed_index(n: int) -> np.ndarray:
@@ -289,6 +289,26 @@ def _iterate(A, tr, X, L, Y, AY, H, Vh, th, y, b, k, max_iter):
     return False
 
 
+@njit(cache=True)
+def _accept(X, th, k, nq, tr, rank_tol, m_tol, M, MtM, Vk, wk):
+    """The validity checks of :func:`estimator.solve.null_space` on a found subspace: the
+    (k+1)-th eigenvalue clear of zero (texture), and M, the fixed rows of the k null
+    vectors, well conditioned (the ds, dt directions lie in the null space)."""
+    if not th[k] > rank_tol * tr:
+        return False
+    for a in range(k):
+        for bb in range(k):
+            M[a, bb] = X[nq + a, bb]
+    for a in range(k):
+        for bb in range(k):
+            s = 0.0
+            for r in range(k):
+                s += M[r, a] * M[r, bb]
+            MtM[a, bb] = s
+    _jacobi(MtM, Vk, wk)
+    return np.sqrt(max(wk[0], 0.0)) > m_tol
+
+
 @njit(parallel=True, cache=True)
 def _solve_all(Jp, idx, perm, k, grows, rank_tol, m_tol, max_iter, P, g, err, valid, nfall):
     """Rows are taken in the order ``perm`` (non-fixed rows first, the k fixed rows
@@ -335,12 +355,18 @@ def _solve_all(Jp, idx, perm, k, grows, rank_tol, m_tol, max_iter, P, g, err, va
                 have = False
                 continue
             if not have:
-                X[:, :] = 0.0
-                for j in range(m):          # deterministic start
-                    X[(j * 7 + 3) % n, j] = 1.0
-                    X[(j * 5 + 1) % n, j] += 0.5
+                # deterministic, dense start: every component non-zero, so that no
+                # eigenvector is missed when J decouples exactly (a static scene has
+                # I_t = 0: the dt direction is a unit vector, and a start orthogonal to
+                # it would never find it)
+                for r in range(n):
+                    for j in range(m):
+                        X[r, j] = np.cos(1.0 + 0.618 * (r + 1) * (j + 1))
             ok = _iterate(A, tr, X, L, Y, AY, H, Vh, th, y, b, k, max_iter)
-            if not ok:
+            good = ok and _accept(X, th, k, nq, tr, rank_tol, m_tol, M, MtM, Vk, wk)
+            if not good:
+                # LAPACK after non-convergence, and also when the iteration's subspace
+                # fails the checks (it could miss a direction its start lacked)
                 nfall[c] += 1
                 w, V = np.linalg.eigh(A)
                 for r in range(n):
@@ -348,23 +374,10 @@ def _solve_all(Jp, idx, perm, k, grows, rank_tol, m_tol, max_iter, P, g, err, va
                         X[r, j] = V[r, j]
                 for j in range(m):
                     th[j] = w[j]
-            have = True
+                good = _accept(X, th, k, nq, tr, rank_tol, m_tol, M, MtM, Vk, wk)
             err[i] = th[k - 1]
-            if not th[k] > rank_tol * tr:
-                have = False
-                continue
-            # M: the fixed rows (last k) of the k null vectors; smallest singular value
-            for a in range(k):
-                for bb in range(k):
-                    M[a, bb] = X[nq + a, bb]
-            for a in range(k):
-                for bb in range(k):
-                    s = 0.0
-                    for r in range(k):
-                        s += M[r, a] * M[r, bb]
-                    MtM[a, bb] = s
-            _jacobi(MtM, Vk, wk)
-            if not np.sqrt(max(wk[0], 0.0)) > m_tol:
+            have = good
+            if not good:
                 continue
             # Minv by Gauss-Jordan with partial pivoting (k <= 3)
             for a in range(k):

@@ -202,6 +202,13 @@ def load_folder(folder) -> GridVolume:
     m = _read_manifest(folder)
     (Sy, Sx), T = m["_grid"], m["_frames"]
     manifest = folder / "grid.json"
+    # a manifest that names far more images than the folder holds files is refused before
+    # the names are even listed (a typo such as "frames": 25444 must not take minutes);
+    # up to 10 000 names are listed, which takes milliseconds, to name the missing files
+    n_files = sum(len(files) for _, _, files in os.walk(folder))
+    if T * Sy * Sx > max(n_files, 10_000):
+        raise LoaderError(f"{manifest}: 'grid' {[Sy, Sx]} x 'frames' {T} names {T * Sy * Sx} "
+                          f"images, but the folder holds only {n_files} files")
     expected = {}
     for t in range(T):
         for i in range(Sy):

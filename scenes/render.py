@@ -18,6 +18,7 @@ import subprocess
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -83,20 +84,52 @@ def render_cube(scene: CubeScene, root, *, workers: int | None = None,
     PovrayMissing
         If ``povray`` is not installed.
     """
-    from tqdm import tqdm
-
     folder = Path(root).resolve() / f"cube-{scene.key()}"
     manifest = folder / "grid.json"
     if manifest.exists():
         return folder
     exe = povray_binary()
     folder.mkdir(parents=True, exist_ok=True)
+    with _locked(folder):
+        if manifest.exists():           # another process finished it while we waited
+            return folder
+        _remove_leftovers(folder)
+        _render_all(exe, scene, folder, manifest, workers, progress)
+    return folder
+
+
+@contextmanager
+def _locked(folder: Path):
+    """Hold an exclusive lock on a scene folder: one process renders it at a time."""
+    import fcntl
+
+    with open(folder / ".lock", "w") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def _remove_leftovers(folder: Path) -> None:
+    """Temporary files of a render that was killed (only called under the folder's lock,
+    so none of them belongs to a running render)."""
+    for p in folder.glob(".*.tmp.png"):
+        p.unlink(missing_ok=True)
+    for p in folder.glob(".pov-*"):
+        shutil.rmtree(p, ignore_errors=True)
+
+
+def _render_all(exe: str, scene: CubeScene, folder: Path, manifest: Path, workers,
+                progress: bool) -> None:
+    from tqdm import tqdm
+
     Sy, Sx = scene.grid
     jobs = [(k, i, j, folder / IMAGE_PATTERN.format(t=k, sy=i, sx=j))
             for k in range(scene.frames) for i in range(Sy) for j in range(Sx)]
     todo = [job for job in jobs if not job[3].exists()]
     t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory(prefix="gridflow-pov-") as tmpdir, \
+    with tempfile.TemporaryDirectory(prefix=".pov-", dir=folder) as tmpdir, \
             ThreadPoolExecutor(max_workers=workers or os.cpu_count() or 1) as ex, \
             tqdm(total=len(jobs), initial=len(jobs) - len(todo), disable=not progress,
                  desc="render cube", unit="img") as bar:
@@ -128,4 +161,3 @@ def render_cube(scene: CubeScene, root, *, workers: int | None = None,
     }
     with atomic_write(manifest, "w") as fh:
         json.dump(meta, fh, indent=1)
-    return folder

@@ -42,15 +42,18 @@ def rng():
 
 
 def pytest_terminal_summary(terminalreporter):
-    """Report how many inputs the property tests tried, and what became of them."""
+    """Report how many inputs the property and hostile-input tests tried, and what became
+    of them."""
     import sys
 
-    mods = [m for name, m in sys.modules.items() if name.endswith("test_properties")]
-    TRIED = next((m.TRIED for m in mods if getattr(m, "TRIED", None)), None)
-    if TRIED:
-        terminalreporter.write_sep("-", "property tests: inputs tried")
-        for key in sorted(TRIED):
-            terminalreporter.write_line(f"{TRIED[key]:6d}  {key}")
-        terminalreporter.write_line(f"{sum(TRIED.values()):6d}  in all; none crashed or "
-                                    "exceeded the 20 s deadline (a failure would be reported "
+    counts = {}
+    for name, m in list(sys.modules.items()):
+        if name.endswith(("test_properties", "test_hostile")) and getattr(m, "TRIED", None):
+            counts.update(m.TRIED)
+    if counts:
+        terminalreporter.write_sep("-", "property and hostile-input tests: inputs tried")
+        for key in sorted(counts):
+            terminalreporter.write_line(f"{counts[key]:6d}  {key}")
+        terminalreporter.write_line(f"{sum(counts.values()):6d}  in all; none crashed, hung or "
+                                    "wrote a file it should not (a failure would be reported "
                                     "above)")

@@ -688,3 +688,23 @@ def test_static_scene_is_estimated_like_the_reference():
         scale = max(float(np.nanmax(np.abs(ref[q]))), 1e-3)
         assert np.nanmax(np.abs(fast[q] - ref[q])) <= 1e-6 * scale, q
     tried("static scene")
+
+
+def test_a_killed_render_leaves_nothing_behind(tmp_path):
+    """What a render killed with SIGKILL leaves (a half-written image under a temporary
+    name, its scene files) is removed by the next render of the scene, under its lock."""
+    from gridflow.scenes import CubeScene, render_cube
+
+    scene = CubeScene(width=24, height=24, grid=(3, 3), frames=3)
+    folder = tmp_path / f"cube-{scene.key()}"
+    folder.mkdir()
+    (folder / ".t00_y0_x0.png.12345.tmp.png").write_bytes(b"half an image")
+    (folder / ".pov-dead").mkdir()
+    (folder / ".pov-dead" / "r0_0_0_12345.pov").write_text("// scene")
+    out = render_cube(scene, tmp_path, progress=False)
+    assert out == folder
+    left = sorted(p.name for p in folder.iterdir() if p.name.startswith(".") and
+                  p.name != ".lock")
+    assert left == [], left
+    assert load_folder(folder).volume.shape == (3, 3, 3, 24, 24)
+    tried("leftovers of a killed render")

@@ -154,10 +154,17 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
     uy = p2 - y0 * uz
     with np.errstate(divide="ignore", invalid="ignore"):
         Z = -f / v
+        # Eq. 16 inverted exactly for a plane: along a plane -f/Z is affine in x and y,
+        # so z_x = Z_x / (Z (1 - (Z_x x0 + Z_y y0) / f)) with *both* slopes; solving for
+        # Z_x, Z_y gives the common denominator below (the paper's per-axis form is exact
+        # only when the other slope is 0).
+        den = 1.0 + (zx * x0 + zy * y0) * Z / f
+        Zx = zx * Z / den
+        Zy = zy * Z / den
         out = {
             "Z": Z,
-            "Zx": zx * Z / (1.0 + zx * Z * x0 / f),
-            "Zy": zy * Z / (1.0 + zy * Z * y0 / f),
+            "Zx": Zx,
+            "Zy": Zy,
             "Ux": Z * ux / f,
             "Uy": Z * uy / f,
             "Uz": -Z * uz,
@@ -166,10 +173,15 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
             out["a1"] = -ct[:, i("I")]
             out["a2"] = -ct[:, i("tI")] / 2.0
         if "IDx" in model.rows:
-            jx = f * (1.0 - out["Zx"] * x0 / f) / Z
-            jy = f * (1.0 - out["Zy"] * y0 / f) / Z
-            out["a1x"] = -ct[:, i("IDx")] * jx
-            out["a1y"] = -ct[:, i("IDy")] * jy
-            out["a2x"] = -ct[:, i("tIDx")] / 2.0 * jx
-            out["a2y"] = -ct[:, i("tIDy")] / 2.0 * jy
+            # Eq. 20 exactly: the brightness varies with the surface coordinates (X, Y),
+            # whose pixel derivatives on the plane couple x and y; inverting
+            # (b_x, b_y) = -(dX, dY)/d(x, y)^T (a_x, a_y) gives
+            #   a_x = -((f - Z_x x0) b_x - Z_x y0 b_y) / Z,
+            #   a_y = -((f - Z_y y0) b_y - Z_y x0 b_x) / Z.
+            # (rows I t Δx, I t Δy carry 2 b2x, 2 b2y)
+            for a, rx, ry, half in (("a1", "IDx", "IDy", 1.0), ("a2", "tIDx", "tIDy", 0.5)):
+                bx = ct[:, i(rx)] * half
+                by = ct[:, i(ry)] * half
+                out[a + "x"] = -((f - Zx * x0) * bx - Zx * y0 * by) / Z
+                out[a + "y"] = -((f - Zy * y0) * by - Zy * x0 * bx) / Z
     return out

@@ -40,7 +40,7 @@ $(KERNELS): estimator/_fast.py | $(STAMP)
 env: $(STAMP) $(KERNELS)
 
 # --- results and figures -----------------------------------------------------------------
-NUMERICS  := $(wildcard estimator/*.py generators/*.py) gridflow/volume.py gridflow/io.py bench/metrics.py bench/sweep.py \
+NUMERICS  := $(wildcard estimator/*.py generators/*.py) gridflow/volume.py gridflow/io.py bench/metrics.py bench/sweep.py bench/setups.py \
              bench/cli.py
 SWEEP_CSV := results/sweep_paper.csv
 FIGDIR    := results/figures

@@ -28,6 +28,10 @@ def _add_sinusoid_args(p: argparse.ArgumentParser) -> None:
         if isinstance(default, tuple):
             g.add_argument(flag, type=type(default[0]), nargs=2, default=None,
                            metavar=("A", "B"), help=f"default {default[0]} {default[1]}")
+        elif fl.name == "texture":
+            from gridflow.generators.sinusoid import TEXTURES
+
+            g.add_argument(flag, choices=TEXTURES, default=None, help=f"default {default}")
         else:
             g.add_argument(flag, type=type(default), default=None, help=f"default {default}")
 
@@ -49,12 +53,16 @@ def _add_estimator_args(p: argparse.ArgumentParser) -> None:
                    help="implementation (same results; default fast)")
     g.add_argument("--no-slant-correction", action="store_true",
                    help="read U_Z as the paper does (no slant-motion correction)")
+    g.add_argument("--combine", choices=("inverse_variance", "mean"),
+                   default="inverse_variance",
+                   help="how the two estimates of v, z_x, z_y, u_z are combined "
+                        "(default inverse_variance)")
 
 
 def _estimator_settings(a) -> dict:
     return dict(sigma=a.sigma, window=a.window, filters=a.filters,
                 temporal_radius=a.temporal_radius, ref_frame=a.ref_frame, method=a.method,
-                slant_correction=not a.no_slant_correction)
+                slant_correction=not a.no_slant_correction, combine=a.combine)
 
 
 def _load_input(path: str):
@@ -175,7 +183,7 @@ def cmd_sweep(a) -> int:
         if not (a.param and a.values):
             raise SpecError("--param and --values go together")
         spec.axes = [(a.param, list(a.values))]
-    for key in ("models", "noise", "seeds"):
+    for key in ("models", "noise", "seeds", "setup"):
         if getattr(a, key) is not None:
             setattr(spec, key, getattr(a, key))
     spec.validate(a.spec or "command line")
@@ -319,6 +327,8 @@ def cmd_cube(a) -> int:
 def build_parser() -> argparse.ArgumentParser:
     from gridflow import __version__
 
+    from .setups import SETUPS
+
     ap = argparse.ArgumentParser(
         prog="gridflow",
         description="Surface motion, depth and slopes from a camera grid under changing "
@@ -355,6 +365,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--models", nargs="+", help="models (default: all three)")
     p.add_argument("--noise", type=float, nargs="+", help="noise levels sigma_n")
     p.add_argument("--seeds", type=int, nargs="+", help="noise seeds")
+    p.add_argument("--setup", choices=sorted(SETUPS), default=None,
+                   help="named setup the spec starts from (default: the spec's, else "
+                        "gridflow; see bench/setups.py)")
     p.add_argument("--connect-timeout", type=float, default=10.0,
                    help="seconds to wait for --scheduler or --workers to answer (default 10)")
     p.add_argument("--processes", type=_positive_int, default=None,

@@ -34,6 +34,7 @@ from gridflow.generators import SinusoidParams, check_params, make_sinusoid
 
 from gridflow.io import atomic_write
 from .metrics import evaluate
+from .setups import get_setup
 
 __all__ = ["SweepSpec", "Point", "run_point", "run_sweep", "SpecError", "SweepInterrupted",
            "COLUMNS", "shipped_specs", "resolve_spec"]
@@ -41,14 +42,15 @@ __all__ = ["SweepSpec", "Point", "run_point", "run_sweep", "SpecError", "SweepIn
 COLUMNS = ["sweep", "param", "value", "noise", "seed", "model", "quantity", "measure", "q",
            "q_rel", "q_abs", "n_pixels", "n_invalid", "generator", "estimator"]
 QUANTITY_ORDER = ["Z", "Zx", "Zy", "Ux", "Uy", "Uz", "a1", "a2", "a1x", "a1y", "a2x", "a2y"]
-_SWEEPABLE = {f.name for f in fields(SinusoidParams)} - {"grid", "spacing", "seed", "noise"}
+_SWEEPABLE = {f.name for f in fields(SinusoidParams)} - {"grid", "spacing", "seed", "noise",
+                                                           "texture"}
 # generator parameters that are integers (sizes); spec values for them must be integral
 _INTEGER = {f.name for f in fields(SinusoidParams) if f.type in ("int", int)}
 # everything a row of the CSV depends on: the code of these modules (besides the spec and
 # the library versions) keys a finished point, so a changed module is never mixed in
 _ROW_SOURCES = ("gridflow.estimator", "gridflow.generators", "gridflow.volume", "gridflow.io",
-                "gridflow.bench.sweep", "gridflow.bench.metrics")
-_SECTION_KEYS = {"sweep": {"name", "models", "noise", "seeds"}, "base": None,
+                "gridflow.bench.sweep", "gridflow.bench.metrics", "gridflow.bench.setups")
+_SECTION_KEYS = {"sweep": {"name", "models", "noise", "seeds", "setup"}, "base": None,
                  "estimator": None, "axis": {"param", "values"}}
 
 
@@ -103,6 +105,10 @@ class SweepSpec:
     estimator : dict
         Estimator settings (``EstimatorSettings`` fields).
     axes : list of (str, list of float)
+    setup : str
+        The named setup (:mod:`gridflow.bench.setups`) whose generator parameters,
+        estimator settings and brightness reference the spec starts from; ``base`` and
+        ``estimator`` override them.
     """
 
     name: str
@@ -112,6 +118,7 @@ class SweepSpec:
     base: dict = field(default_factory=dict)
     estimator: dict = field(default_factory=dict)
     axes: list[tuple[str, list[float]]] = field(default_factory=list)
+    setup: str = "gridflow"
 
     @classmethod
     def from_toml(cls, path) -> "SweepSpec":
@@ -158,7 +165,7 @@ class SweepSpec:
                    noise=_list(sw.get("noise", [0.0]), float, "[sweep] noise", source),
                    seeds=_list(sw.get("seeds", [0]), int, "[sweep] seeds", source),
                    base=dict(raw.get("base", {})), estimator=dict(raw.get("estimator", {})),
-                   axes=axes)
+                   axes=axes, setup=sw.get("setup", "gridflow"))
         spec.validate(source)
         return spec
 
@@ -168,6 +175,10 @@ class SweepSpec:
         Integral values of integer generator parameters (``height``, ``width``,
         ``frames``) are converted to ``int`` in place.
         """
+        try:
+            get_setup(self.setup)
+        except ValueError as exc:
+            raise SpecError(f"{source}: [sweep] setup: {exc}") from None
         if not isinstance(self.name, str) or not self.name.strip():
             raise SpecError(f"{source}: [sweep] name must be a non-empty string, got "
                             f"{self.name!r}")
@@ -213,11 +224,11 @@ class SweepSpec:
             raise SpecError(f"{source}: [base]: unknown sinusoid parameter(s) {unknown}")
         self.base = {k: _value(k, v, "[base]", source) for k, v in self.base.items()}
         try:
-            base = SinusoidParams().replace(**self.base)
+            base = self.base_params()
         except (TypeError, ValueError) as exc:
             raise SpecError(f"{source}: [base]: {exc}") from None
         try:
-            EstimatorSettings(**self.estimator)
+            EstimatorSettings(**self.estimator_settings())
         except (TypeError, InputError) as exc:
             raise SpecError(f"{source}: [estimator]: {exc}") from None
         for p in self.points():
@@ -234,14 +245,23 @@ class SweepSpec:
                 for param, values in self.axes for v in values
                 for n in self.noise for s in self.seeds]
 
+    def base_params(self) -> SinusoidParams:
+        """Generator parameters common to all points: the setup's, then ``[base]``."""
+        return SinusoidParams().replace(**{**get_setup(self.setup).base, **self.base})
+
+    def estimator_settings(self) -> dict:
+        """Estimator settings: the setup's, then ``[estimator]``."""
+        return {**get_setup(self.setup).estimator, **self.estimator}
+
     def params(self, point: Point, base: SinusoidParams | None = None) -> SinusoidParams:
-        base = base or SinusoidParams().replace(**self.base)
+        base = base or self.base_params()
         value = int(point.value) if point.param in _INTEGER else point.value
         return base.replace(**{point.param: value, "noise": point.noise, "seed": point.seed})
 
     def as_dict(self) -> dict:
         """The spec as plain data (what the provenance sidecar and the resume key record)."""
-        return {"name": self.name, "models": list(self.models), "noise": list(self.noise),
+        return {"name": self.name, "setup": self.setup, "models": list(self.models),
+                "noise": list(self.noise),
                 "seeds": list(self.seeds), "base": dict(self.base),
                 "estimator": dict(self.estimator),
                 "axes": [{"param": p, "values": list(v)} for p, v in self.axes]}
@@ -276,6 +296,10 @@ def _value(param: str, v, what: str, source: str):
     """A generator parameter's value from a spec: numbers only, integral for sizes."""
     if isinstance(v, list) and param in ("grid", "spacing"):
         return [_value(param + "[]", x, what, source) for x in v]
+    if param == "texture":
+        if not isinstance(v, str):
+            raise SpecError(f"{source}: {what}: texture must be a string, got {v!r}")
+        return v
     if not _real(v):
         raise SpecError(f"{source}: {what}: {param} must be a finite number, got {v!r}")
     if param in _INTEGER or param == "grid[]":
@@ -380,7 +404,14 @@ def run_point(spec: SweepSpec, point: Point) -> pd.DataFrame:
     params = spec.params(point)
     sv = make_sinusoid(params)
     res = estimate_models(sv.volume, sv.focal_length, sv.camera_spacing, models=spec.models,
-                          principal_point=sv.principal_point, **spec.estimator)
+                          principal_point=sv.principal_point, **spec.estimator_settings())
+    truth = dict(sv.truth)
+    if get_setup(spec.setup).brightness_reference == "global":
+        # Eq. 22 against the swept brightness parameter's own value (the paper's reading
+        # of Q_ref), not the local a + a_x X + a_y Y at each pixel
+        fi = params.frame_interval
+        truth["a1"] = np.full_like(truth["a1"], params.a1 * fi)
+        truth["a2"] = np.full_like(truth["a2"], params.a2 * fi * fi)
     gen = _diff_json(params.as_dict(), SinusoidParams().as_dict())
     rows = []
     for model in spec.models:
@@ -389,7 +420,7 @@ def run_point(spec: SweepSpec, point: Point) -> pd.DataFrame:
         est = _diff_json(e.settings, {**EstimatorSettings().__dict__, "model": model,
                                       "filters_xy": f, "filters_sx": f, "filters_sy": f,
                                       "filters_t": f})
-        for r in evaluate(e.maps, sv.truth, e.interior):
+        for r in evaluate(e.maps, truth, e.interior):
             rows.append({"sweep": spec.name, "param": point.param, "value": point.value,
                          "noise": point.noise, "seed": point.seed, "model": model, **r,
                          "generator": gen, "estimator": est})

@@ -17,6 +17,7 @@ __all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_
            "METHODS"]
 
 METHODS = ("fast", "grouped", "reference")
+COMBINE = ("inverse_variance", "mean")
 
 
 class InputError(ValueError):
@@ -50,6 +51,9 @@ class EstimatorSettings:
         baseline of ``bench/``).
     slant_correction : bool
         Remove the slant-motion coupling from ``U_Z`` (see :mod:`estimator.solve`).
+    combine : {"inverse_variance", "mean"}
+        How the twice-estimated ``v, z_x, z_y, u_z`` are combined: weighted by their
+        first-order error estimates (default), or plainly averaged.
     band_rows : int or None
         Output rows processed at a time (bounds memory); default from a 256 MB budget.
     """
@@ -62,6 +66,7 @@ class EstimatorSettings:
     method: str = "fast"
     slant_correction: bool = True
     band_rows: int | None = None
+    combine: str = "inverse_variance"
 
     def __post_init__(self) -> None:
         """Refuse settings that are of the wrong type or out of range (InputError naming
@@ -86,6 +91,8 @@ class EstimatorSettings:
         if not isinstance(self.slant_correction, (bool, np.bool_)):
             raise InputError(f"slant_correction must be true or false, got "
                              f"{self.slant_correction!r}")
+        if self.combine not in COMBINE:
+            raise InputError(f"combine must be one of {COMBINE}, got {self.combine!r}")
         if self.band_rows is not None and not (integer(self.band_rows) and self.band_rows >= 1):
             raise InputError(f"band_rows must be a positive integer or None, got "
                              f"{self.band_rows!r}")
@@ -338,7 +345,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
             else:
                 P, g, err, valid = solver(Jf[:, sub[m][:, None], sub[m][None, :]], mdl[m])
             res = disentangle(P, g, mdl[m], x0, y0, c["f"], c["spacing"],
-                              slant_correction=s.slant_correction)
+                              slant_correction=s.slant_correction, combine=s.combine)
             # an eigenvalue of J: undo the internal rescaling (J scales with its square).
             # For |V| beyond ~1e154 the true value is not representable: it becomes inf.
             inv = 1.0 / c["scale"]

@@ -103,7 +103,8 @@ def _combine(x1, w1, x2, w2):
 
 def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: np.ndarray,
                 focal_length: float, spacing: tuple[float, float],
-                slant_correction: bool = True) -> dict[str, np.ndarray]:
+                slant_correction: bool = True,
+                combine: str = "inverse_variance") -> dict[str, np.ndarray]:
     """Parameters in world units from the parameter vectors (Sec. 3, steps 4-5).
 
     Parameters
@@ -120,6 +121,9 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
         Camera spacing ``(ds_x, ds_y)`` in world units.
     slant_correction : bool
         Remove the slant-motion coupling from ``u_z`` (see module docstring).
+    combine : {"inverse_variance", "mean"}
+        Weights of the two estimates of ``v, z_x, z_y, u_z``: inverse variances (module
+        docstring) or equal.
 
     Returns
     -------
@@ -130,6 +134,12 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
     f = focal_length
     dsx, dsy = spacing
     norm2 = np.einsum("nrc,nrc->nc", P, P)             # |p_c|^2
+    if combine == "mean":
+        g = np.ones_like(g)
+        norm2 = np.ones_like(norm2)
+        dsx_w, dsy_w = 1.0, 1.0
+    else:
+        dsx_w, dsy_w = dsx, dsy
     cx, ct = P[..., 0], P[..., -1]
     # From the ds columns: disparity v and projected slopes, per world unit of ds.
     v = cx[:, i("Ix")] / dsx
@@ -137,8 +147,8 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
     zy = cx[:, i("IxDy")] / dsx
     if model.grid_dims == 2:
         cy = P[..., 1]
-        wx = dsx ** 2 / norm2[:, 0]
-        wy = dsy ** 2 / norm2[:, 1]
+        wx = dsx_w ** 2 / norm2[:, 0]
+        wy = dsy_w ** 2 / norm2[:, 1]
         v = _combine(v, wx / g[:, i("Ix")], cy[:, i("Iy")] / dsy, wy / g[:, i("Iy")])
         zx = _combine(zx, wx / g[:, i("IxDx")], cy[:, i("IyDx")] / dsy, wy / g[:, i("IyDx")])
         zy = _combine(zy, wx / g[:, i("IxDy")], cy[:, i("IyDy")] / dsy, wy / g[:, i("IyDy")])

@@ -5,8 +5,10 @@ A textured plane ``Z = Z0 + U_Z t + Z_X Xm + Z_Y Ym`` translates with ``(U_X, U_
 ``t = 0`` with the origin on the reference camera's optical axis.  Texture and brightness
 change are functions of the material coordinates (Eq. 8, 11)::
 
-    I = (offset + amplitude/2 * (sin(2 pi Xm / Lx) + sin(2 pi Ym / Ly)))
-        * exp((a1 + a1x Xm + a1y Ym) t + (a2 + a2x Xm + a2y Ym) t^2)
+    I = T(Xm, Ym) * exp((a1 + a1x Xm + a1y Ym) t + (a2 + a2x Xm + a2y Ym) t^2)
+
+    T = offset + amplitude/2 * (sin(2 pi Xm / Lx) + sin(2 pi Ym / Ly))   (texture "sum")
+    T = offset + amplitude * sin(2 pi Xm / Lx) * sin(2 pi Ym / Ly)       (texture "product")
 
 Each pixel of each camera is rendered by intersecting its ray with the plane at that
 time; nothing of the estimator's linearisation (Eq. 15-17) is used, so the estimator's
@@ -29,6 +31,7 @@ from gridflow.volume import GridVolume
 __all__ = ["SinusoidParams", "SyntheticVolume", "make_sinusoid", "check_params", "BRIGHTNESS_PARAMS"]
 
 BRIGHTNESS_PARAMS = ("a1", "a1x", "a1y", "a2", "a2x", "a2y")
+TEXTURES = ("sum", "product")
 
 # exp() of float64 overflows at 709.8; refuse well before so that a sweep value that would
 # produce inf/0 intensities is an error, not silent garbage.
@@ -60,6 +63,8 @@ class SinusoidParams:
         ``a1x`` etc. additionally per world unit.
     wavelength_x, wavelength_y : float
         Texture wavelengths in pixels of the reference camera at depth ``Z0``.
+    texture : {"sum", "product"}
+        The sum of the two sinusoids (x- and y-structure everywhere) or their product.
     amplitude, offset : float
         Texture amplitude (peak deviation from the mean at ``t = 0``) and mean.  The
         default offset 0 is the literal reading of the paper's "amplitude 1" and "noise
@@ -96,6 +101,7 @@ class SinusoidParams:
     a2y: float = 0.0
     wavelength_x: float = 8.0
     wavelength_y: float = 80.0
+    texture: str = "sum"
     amplitude: float = 1.0
     offset: float = 0.0
     noise: float = 0.0
@@ -108,7 +114,11 @@ class SinusoidParams:
     frame_interval: float = 1.0
 
     def __post_init__(self) -> None:
+        if self.texture not in TEXTURES:
+            raise ValueError(f"texture must be one of {TEXTURES}, got {self.texture!r}")
         for fl in fields(self):
+            if fl.name == "texture":
+                continue
             val = getattr(self, fl.name)
             vals = val if isinstance(val, tuple) else (val,)
             for v in vals:
@@ -233,7 +243,10 @@ def make_sinusoid(params: SinusoidParams | None = None, *, dtype=np.float64,
                 _, Xm, Ym = _intersect(p, x, y, sx, sy, t)
                 h = ((p.a1 + p.a1x * Xm + p.a1y * Ym) * t
                      + (p.a2 + p.a2x * Xm + p.a2y * Ym) * t * t)
-                tex = p.offset + 0.5 * p.amplitude * (np.sin(kx * Xm) + np.sin(ky * Ym))
+                if p.texture == "sum":
+                    tex = p.offset + 0.5 * p.amplitude * (np.sin(kx * Xm) + np.sin(ky * Ym))
+                else:
+                    tex = p.offset + p.amplitude * np.sin(kx * Xm) * np.sin(ky * Ym)
                 img = tex * np.exp(h)
                 if p.noise > 0:
                     # image by image, in C order: reproducible from the seed alone, and

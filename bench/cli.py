@@ -221,13 +221,16 @@ def cmd_figures(a) -> int:
     from gridflow.io import check_output
 
     out = check_output(a.out, suffixes=None, what="--out")
+    if not all(c.isalnum() or c in "_.-" for c in a.suffix):
+        raise ValueError(f"--suffix {a.suffix!r}: use letters, digits, '_', '.' and '-' only")
     if not (a.sweep or a.fig2):
         raise ValueError("nothing to draw: give --sweep CSV (Figs. 3, 4) and/or --fig2")
     written = []
     if a.sweep:
         df = _read_sweep_csv(a.sweep)
-        written += F.save(F.fig3(df), out, "fig3")
-        written += F.save(F.fig4(df), out, "fig4")
+        label = ", ".join(f"sweep {n}" for n in df["sweep"].unique()) if "sweep" in df else ""
+        written += F.save(F.fig3(df, label), out, "fig3" + a.suffix)
+        written += F.save(F.fig4(df, label=label), out, "fig4" + a.suffix)
     if a.fig2:
         sv = make_sinusoid(a2=-0.2, a2x=-0.002)
         c = sv.volume.shape[1] // 2, sv.volume.shape[2] // 2
@@ -237,7 +240,7 @@ def cmd_figures(a) -> int:
         titles = [f"(a) first frame, t = {-k}", "reference frame, t = 0",
                   f"(b) last frame, t = {T - 1 - k}"]
         written += F.save(F.fig2(frames, titles, r"Fig. 2: $a_1 = a_{1,x} = 0$, "
-                                 r"$a_2 = -0.2$, $a_{2,x} = -0.002$ (one grey scale)"),
+                                 r"$a_2 = -0.2$, $a_{2,x} = -0.002$"),
                           out, "fig2")
     for p in written:
         print(f"wrote {p}")
@@ -279,7 +282,9 @@ def cmd_claims(a) -> int:
     print(table.to_string(index=False, columns=["id", "verdict", "numbers"],
                           max_colwidth=110))
     if a.write_doc or a.write_csv:
-        write_claims(table, doc=a.write_doc, csv=a.write_csv, source=a.csv)
+        names = df["sweep"].unique() if "sweep" in df else []
+        tag = f"claims:{names[0]}" if len(names) == 1 else "claims"
+        write_claims(table, doc=a.write_doc, csv=a.write_csv, source=a.csv, tag=tag)
         for p in (a.write_doc, a.write_csv):
             if p:
                 print(f"wrote {p}")
@@ -382,6 +387,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sweep", help="sweep CSV for Figs. 3 and 4")
     p.add_argument("--fig2", action="store_true", help="draw Fig. 2")
     p.add_argument("--out", default="results/figures", help="folder (default results/figures)")
+    p.add_argument("--suffix", default="", help="appended to the figure names (fig3SUFFIX.png)")
     p.set_defaults(func=cmd_figures)
 
     p = sub.add_parser("cube", help="render the cube (POV-Ray), estimate, Fig. 1 and cube.csv")

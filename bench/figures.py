@@ -93,7 +93,7 @@ def _panel(ax, df: pd.DataFrame, quantity: str, param: str, models, noise: float
     ax.set_ylabel(_ylabel(quantity, measure))
 
 
-def fig3(df: pd.DataFrame):
+def fig3(df: pd.DataFrame, label: str = ""):
     """Errors of a1 (top) and a2 (bottom) against a1, a1x, a2, a2x; HF and full, noise-free."""
     with plt.rc_context(STYLE):
         fig, axes = plt.subplots(2, 4, figsize=(10, 4.6), constrained_layout=True)
@@ -101,11 +101,12 @@ def fig3(df: pd.DataFrame):
             for col, p in enumerate(PARAMS):
                 _panel(axes[row, col], df, q, p, ("hf", "full"), 0.0)
         axes[0, 0].legend()
-        fig.suptitle("Fig. 3: brightness parameters, noise-free (dotted: value at 0)")
+        fig.suptitle("Fig. 3: brightness parameters, noise-free (dotted: value at 0)"
+                     + (f" [{label}]" if label else ""))
     return fig
 
 
-def fig4(df: pd.DataFrame, noise: float = 0.025):
+def fig4(df: pd.DataFrame, noise: float = 0.025, label: str = ""):
     """Q_rel(U_Z) against a1, a1x, a2, a2x; three models; noise-free and noisy."""
     with plt.rc_context(STYLE):
         fig, axes = plt.subplots(2, 4, figsize=(10, 4.6), constrained_layout=True)
@@ -126,12 +127,14 @@ def fig4(df: pd.DataFrame, noise: float = 0.025):
                 ax.set_ylabel(r"$Q_{rel}$ of $U_Z$" + ("" if n == 0 else rf", $\sigma_n$={n}"))
         axes[0, 0].legend()
         fig.suptitle(r"Fig. 4: relative error of $U_Z$; top noise-free, bottom "
-                     rf"$\sigma_n = {noise}$ (dotted: value at 0)")
+                     rf"$\sigma_n = {noise}$ (dotted: value at 0)" + (f" [{label}]" if label else ""))
     return fig
 
 
 def fig2(frames: list[np.ndarray], titles: list[str], caption: str):
-    """Central-camera images of a sequence on one shared grey scale.
+    """Central-camera images of a sequence, each on its own grey scale (the texture stays
+    visible however dark a frame is), and their intensity along the middle row on one
+    scale (the brightness change between the frames).
 
     Parameters
     ----------
@@ -139,16 +142,25 @@ def fig2(frames: list[np.ndarray], titles: list[str], caption: str):
     titles : list of str
     caption : str
     """
-    lo = min(f.min() for f in frames)
-    hi = max(f.max() for f in frames)
     with plt.rc_context(STYLE):
-        fig, axes = plt.subplots(1, len(frames), figsize=(3 * len(frames), 3.3),
-                                 constrained_layout=True)
+        fig, axes = plt.subplots(1, len(frames) + 1, figsize=(3 * len(frames) + 4.2, 3.3),
+                                 constrained_layout=True,
+                                 gridspec_kw={"width_ratios": [1] * len(frames) + [1.6]})
+        row = frames[0].shape[0] // 2
         for ax, img, title in zip(axes, frames, titles):
-            ax.imshow(img, cmap="gray", vmin=lo, vmax=hi, interpolation="nearest")
+            im = ax.imshow(img, cmap="gray", interpolation="nearest")
+            ax.axhline(row, color="tab:orange", lw=0.8, ls="--")
             ax.set_title(title)
             ax.set_xticks([])
             ax.set_yticks([])
             ax.grid(False)
-        fig.suptitle(caption)
+            fig.colorbar(im, ax=ax, shrink=0.8, location="bottom", pad=0.02)
+        prof = axes[-1]
+        for img, title in zip(frames, titles):
+            prof.plot(img[row], lw=1, label=title.split(",")[0])
+        prof.set_xlabel("image column (middle row, dashed)")
+        prof.set_ylabel("intensity")
+        prof.legend(fontsize="small")
+        prof.set_title("the brightness change")
+        fig.suptitle(caption + "; each image on its own grey scale")
     return fig

@@ -12,11 +12,11 @@ brightness errors are measured against.  A *setup* names one complete choice:
     the local truth ``a + a_x X``.  Use it to learn what the method can do.
 ``paper``
     a reading of the paper's unstated parameters chosen to bring its observations about:
-    product texture of amplitude 1 (the noise, 0.025, is then 2.5 % of it, as the paper
-    says), 1 px disparity between neighbouring cameras, 160² images, Ω over ±1 frame,
-    3-tap filters, plain averaging of the two estimates, brightness errors against the
-    global value ``a``.  Its calibration is measured in ``docs/reproduction.md``
-    (*The two setups*).  Use it to compare with the paper's figures.
+    product texture, "amplitude 1" read as peak-to-peak (``amplitude = 0.5``), 1 px
+    disparity between neighbouring cameras, 160² images, Ω over ±1 frame, brightness
+    errors against the global value ``a``; filters and the (error-weighted) combination
+    of the two estimates as gridflow's, the latter as the paper describes its own.  Its calibration is measured in ``docs/reproduction.md`` (*The two
+    setups*).  Use it to compare with the paper's figures.
 
 A sweep spec selects one with ``[sweep] setup = "paper"``; its own ``[base]`` and
 ``[estimator]`` entries override the setup's.
@@ -60,9 +60,9 @@ SETUPS = {
     "paper": Setup(
         "paper", "the reading of the paper's unstated parameters under which its "
                  "observations hold",
-        base={"texture": "product", "amplitude": 1.0, "height": 160, "width": 160,
+        base={"texture": "product", "amplitude": 0.5, "height": 160, "width": 160,
               "spacing": (0.1, 0.1)},
-        estimator={"temporal_radius": 1, "filters": "matched3", "combine": "mean"},
+        estimator={"temporal_radius": 1},
         brightness_reference="global"),
 }
 

@@ -77,7 +77,7 @@ $(FIGDIR)/fig2.png: bench/figures.py generators/sinusoid.py bench/cli.py | $(STA
 
 # The cube: rendered with POV-Ray into work/cube/ (cached, not committed), then estimated.
 $(FIGDIR)/fig1.png results/cube.csv &: $(CUBE_SRC) | $(STAMP) povray
-	$(BIN)/gridflow cube --csv results/cube.csv --fig-dir $(FIGDIR)
+	$(BIN)/gridflow cube --csv results/cube.csv --fig-dir $(FIGDIR) --write-doc docs/reproduction.md
 
 # POV-Ray (Debian's povray) renders the cube; installed where missing, or one line says how.
 povray:

@@ -305,6 +305,8 @@ def cmd_cube(a) -> int:
     check_output(a.csv, suffixes=".csv", what="--csv")
     check_output(a.fig_dir, suffixes=None, what="--fig-dir")
     check_output(a.cache, suffixes=None, what="--cache")
+    if a.write_doc:
+        check_output(a.write_doc, suffixes=".md", what="--write-doc")
     scene = CubeScene(width=a.size, height=a.size, grid=(a.grid, a.grid), frames=a.frames)
     t0 = time.perf_counter()
     folder = render_cube(scene, a.cache, progress=not a.no_progress)
@@ -320,9 +322,21 @@ def cmd_cube(a) -> int:
     with atomic_write(a.csv, "w") as fh:
         table.to_csv(fh, index=False, float_format="%.6g")
     print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
-    for r in observation11(table):
+    checks = observation11(table)
+    for r in checks:
         print(f"observation 11, {r['face']} face: {r['check']}: "
               f"{'holds' if r['holds'] else 'does not hold'}")
+    if a.write_doc:
+        from .claims import _replace_block
+        from .cube import render_markdown
+
+        doc = Path(a.write_doc)
+        text = doc.read_text() if doc.exists() else ""
+        block = render_markdown(table, checks, f"the scene `{folder.name}`, sigma {a.sigma:g}, "
+                                f"{a.window} taps")
+        with atomic_write(doc, "w") as fh:
+            fh.write(_replace_block(text, "cube", block))
+        print(f"wrote {doc}")
     for p in F.save(fig1(data, results), a.fig_dir, "fig1"):
         print(f"wrote {p}")
     print(f"wrote {a.csv}")
@@ -401,6 +415,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--window", type=int, default=33, help="window taps (default 33)")
     p.add_argument("--csv", default="results/cube.csv", help="per-face error table")
     p.add_argument("--fig-dir", default="results/figures", help="where fig1.{png,pdf} go")
+    p.add_argument("--write-doc", help="markdown file whose cube section to rewrite")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=cmd_cube)
 

@@ -1,8 +1,8 @@
 """Data source: the cube of Sec. 4.2 as a POV-Ray scene, its analytic ground truth, and
 its rendering into a camera-grid image folder."""
 
-from .cube import FACE_NAMES, CubeScene, cube_truth, face_interior, scene_sdl
+from .cube import FACE_NAMES, CubeScene, cube_truth, face_interior, scene_sdl, spot_angle
 from .render import IMAGE_PATTERN, PovrayMissing, povray_binary, render_cube
 
-__all__ = ["CubeScene", "scene_sdl", "cube_truth", "face_interior", "FACE_NAMES",
+__all__ = ["CubeScene", "scene_sdl", "cube_truth", "face_interior", "spot_angle", "FACE_NAMES",
            "render_cube", "povray_binary", "PovrayMissing", "IMAGE_PATTERN"]

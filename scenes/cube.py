@@ -186,6 +186,41 @@ def face_interior(face: np.ndarray, margin: float) -> np.ndarray:
     return inner
 
 
+def spot_angle(scene: CubeScene, Z: np.ndarray, k: int) -> np.ndarray:
+    """Angle (degrees) between the spotlight's axis at frame ``k`` and the direction from
+    the light to the surface point seen at each pixel of the reference camera.
+
+    Inside ``spot_radius_deg`` the spot is at full strength, beyond ``spot_falloff_deg``
+    it is off; in between lies its border, where the illumination varies across the
+    surface.
+
+    Parameters
+    ----------
+    scene : CubeScene
+    Z : ndarray, shape (H, W)
+        Depth of the surface at the reference frame (NaN off the cube).
+    k : int
+        Frame.
+
+    Returns
+    -------
+    ndarray, shape (H, W)
+        NaN off the cube.
+    """
+    H, W = Z.shape
+    x = np.arange(W) - (W - 1) / 2
+    y = np.arange(H) - (H - 1) / 2
+    P = np.stack([x[None, :] * Z / scene.f, y[:, None] * Z / scene.f, Z], axis=-1)
+    # the cube and the light move together: the geometry of frame k relative to the cube
+    # is that of the reference frame shifted by the cube's motion
+    shift = scene.center(k - scene.ref_frame) - scene.center(0.0)
+    L = scene.light(k) - shift
+    axis = scene.center(0.0) - L
+    d = P - L
+    cos = (d @ axis) / (np.linalg.norm(d, axis=-1) * np.linalg.norm(axis))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
 def cube_truth(scene: CubeScene, margin: float = 16.0) -> dict[str, np.ndarray]:
     """Ground truth at the reference camera and frame by ray casting the known cube.
 

@@ -52,8 +52,33 @@ def test_cube_table_and_observation(small):
     d = load_folder(folder)
     res = run_cube(d, sigma=4.0, window=17)
     t = cube_table(d, res)
-    assert list(t.face.unique()) == ["left", "right"] and len(t) == 6
-    assert all(isinstance(r["holds"], bool) for r in observation11(t))
+    assert list(t.face.unique()) == ["left", "right"]
+    assert list(t.region.unique()) == ["interior", "edge", "spot_border", "away"]
+    assert len(t) == 2 * 4 * 3
+    # the spotlight's border and the rest partition the interior
+    n = t.set_index(["face", "region", "model"]).n_pixels
+    for face in ("left", "right"):
+        for m in ("bcc", "hf", "full"):
+            assert n[face, "interior", m] == n[face, "spot_border", m] + n[face, "away", m]
+    checks = observation11(t)
+    assert all(isinstance(r["holds"], bool) for r in checks)
+    assert {r["check"] for r in checks} >= {"HF high at the edge and the spot's border",
+                                            "full high only at the edge"}
+
+
+def test_spot_angle_geometry():
+    """The spotlight points at the cube's centre, whose line of sight from the light
+    crosses the visible surface: there the angle is ~0; the visible cube spans less than
+    the falloff; off the cube it is NaN."""
+    from gridflow.scenes import spot_angle
+
+    scene = CubeScene()
+    t = cube_truth(scene)
+    a = spot_angle(scene, t["Z"], scene.ref_frame)
+    on = t["face"] > 0
+    assert np.isnan(a[~on]).all() and np.isfinite(a[on]).all()
+    assert a[on].min() < 1.0 and a[on].max() < scene.spot_falloff_deg
+    assert ((a[on] >= scene.spot_radius_deg)).mean() > 0.05     # a border exists
 
 
 def test_analytic_truth_matches_the_images(tmp_path):

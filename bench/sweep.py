@@ -33,6 +33,7 @@ from gridflow.estimator import MODELS, EstimatorSettings, InputError, estimate_m
 from gridflow.generators import SinusoidParams, check_params, make_sinusoid
 
 from gridflow.io import atomic_write
+from gridflow.volume import physical_memory
 from .metrics import evaluate
 from .setups import get_setup
 
@@ -313,11 +314,8 @@ def _check_size(p: SinusoidParams, where: str) -> None:
     """Refuse a point whose volume would not fit in this machine's memory."""
     Sy, Sx = p.grid
     need = 8 * p.frames * Sy * Sx * p.height * p.width
-    try:
-        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return
-    if need > 0.25 * have:
+    have = physical_memory()
+    if have is not None and need > 0.25 * have:
         raise SpecError(f"{where}: the volume ({p.frames} x {Sy} x {Sx} x {p.height} x "
                         f"{p.width}) needs {need / 2**30:.1f} GiB, more than a quarter of "
                         f"this machine's {have / 2**30:.1f} GiB")

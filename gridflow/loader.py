@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .volume import GridVolume
+from .volume import GridVolume, physical_memory
 
 __all__ = ["load_folder", "LoaderError"]
 
@@ -276,11 +276,8 @@ def load_folder(folder) -> GridVolume:
 def _check_memory(folder: Path, shape: tuple) -> None:
     """Refuse a volume that would not fit in this machine's memory (float64)."""
     need = 8 * int(np.prod(shape, dtype=np.int64))
-    try:
-        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return
-    if need > 0.8 * have:
+    have = physical_memory()
+    if have is not None and need > 0.8 * have:
         raise LoaderError(f"{folder}: the volume {shape} needs {need / 2**30:.1f} GiB as "
                           f"float64, more than this machine's memory allows "
                           f"({have / 2**30:.1f} GiB)")

@@ -13,9 +13,12 @@ brightness errors are measured against.  A *setup* names one complete choice:
 ``paper``
     a reading of the paper's unstated parameters chosen to bring its observations about:
     product texture, "amplitude 1" read as peak-to-peak (``amplitude = 0.5``), 1 px
-    disparity between neighbouring cameras, 160² images, Ω over ±1 frame, brightness
-    errors against the global value ``a``; filters and the (error-weighted) combination
-    of the two estimates as gridflow's, the latter as the paper describes its own.  Its calibration is measured in ``docs/reproduction.md`` (*The two
+    disparity between neighbouring cameras, 160² images, Ω over ±1 frame, plain averaging
+    of the two estimates of ``v, z_x, z_y, u_z``, brightness errors against the global
+    value ``a``; filters as gridflow's.  The paper combines the two estimates "according
+    to their error estimates" after a decorrelating rotation it does not give; read as
+    equal weights, its noise and brightness-constancy observations hold (7, 10), read as
+    gridflow's inverse-variance weights they do not (``docs/reproduction.md``).  Its calibration is measured in ``docs/reproduction.md`` (*The two
     setups*).  Use it to compare with the paper's figures.
 
 A sweep spec selects one with ``[sweep] setup = "paper"``; its own ``[base]`` and
@@ -62,7 +65,7 @@ SETUPS = {
                  "observations hold",
         base={"texture": "product", "amplitude": 0.5, "height": 160, "width": 160,
               "spacing": (0.1, 0.1)},
-        estimator={"temporal_radius": 1},
+        estimator={"temporal_radius": 1, "combine": "mean"},
         brightness_reference="global"),
 }
 

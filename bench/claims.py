@@ -40,7 +40,7 @@ import numpy as np
 import pandas as pd
 
 __all__ = ["check_claims", "render_markdown", "render_checks", "write_claims", "CLAIMS",
-           "missing_data", "breakdown"]
+           "missing_data", "breakdown", "replace_block"]
 
 
 BREAK = 0.1
@@ -420,7 +420,8 @@ def render_checks() -> str:
     return "\n".join(lines)
 
 
-def _replace_block(text: str, tag: str, block: str) -> str:
+def replace_block(text: str, tag: str, block: str) -> str:
+    """``text`` with the block between the ``tag`` markers replaced (or appended)."""
     start, end = _markers(tag)
     body = f"{start}\n\n{block}\n\n{end}"
     if start in text and end in text:
@@ -440,7 +441,7 @@ def write_claims(table: pd.DataFrame, doc=None, csv=None, source: str = "",
     if doc:
         doc = Path(doc)
         text = doc.read_text() if doc.exists() else ""
-        text = _replace_block(text, tag, render_markdown(table, source))
-        text = _replace_block(text, "claims-checks", render_checks())
+        text = replace_block(text, tag, render_markdown(table, source))
+        text = replace_block(text, "claims-checks", render_checks())
         with atomic_write(doc, "w") as fh:
             fh.write(text)

@@ -327,7 +327,7 @@ def cmd_cube(a) -> int:
         print(f"observation 11, {r['face']} face: {r['check']}: "
               f"{'holds' if r['holds'] else 'does not hold'}")
     if a.write_doc:
-        from .claims import _replace_block
+        from .claims import replace_block
         from .cube import render_markdown
 
         doc = Path(a.write_doc)
@@ -335,7 +335,7 @@ def cmd_cube(a) -> int:
         block = render_markdown(table, checks, f"the scene `{folder.name}`, sigma {a.sigma:g}, "
                                 f"{a.window} taps")
         with atomic_write(doc, "w") as fh:
-            fh.write(_replace_block(text, "cube", block))
+            fh.write(replace_block(text, "cube", block))
         print(f"wrote {doc}")
     for p in F.save(fig1(data, results), a.fig_dir, "fig1"):
         print(f"wrote {p}")

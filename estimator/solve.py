@@ -134,12 +134,11 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
     f = focal_length
     dsx, dsy = spacing
     norm2 = np.einsum("nrc,nrc->nc", P, P)             # |p_c|^2
-    if combine == "mean":
-        g = np.ones_like(g)
-        norm2 = np.ones_like(norm2)
-        dsx_w, dsy_w = 1.0, 1.0
-    else:
-        dsx_w, dsy_w = dsx, dsy
+
+    def combine2(x1, w1, x2, w2):
+        # the twice-estimated quantities: inverse-variance weights, or a plain average
+        return _combine(x1, w1, x2, w2) if combine != "mean" else (x1 + x2) / 2.0
+
     cx, ct = P[..., 0], P[..., -1]
     # From the ds columns: disparity v and projected slopes, per world unit of ds.
     v = cx[:, i("Ix")] / dsx
@@ -147,11 +146,11 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
     zy = cx[:, i("IxDy")] / dsx
     if model.grid_dims == 2:
         cy = P[..., 1]
-        wx = dsx_w ** 2 / norm2[:, 0]
-        wy = dsy_w ** 2 / norm2[:, 1]
-        v = _combine(v, wx / g[:, i("Ix")], cy[:, i("Iy")] / dsy, wy / g[:, i("Iy")])
-        zx = _combine(zx, wx / g[:, i("IxDx")], cy[:, i("IyDx")] / dsy, wy / g[:, i("IyDx")])
-        zy = _combine(zy, wx / g[:, i("IxDy")], cy[:, i("IyDy")] / dsy, wy / g[:, i("IyDy")])
+        wx = dsx ** 2 / norm2[:, 0]
+        wy = dsy ** 2 / norm2[:, 1]
+        v = combine2(v, wx / g[:, i("Ix")], cy[:, i("Iy")] / dsy, wy / g[:, i("Iy")])
+        zx = combine2(zx, wx / g[:, i("IxDx")], cy[:, i("IyDx")] / dsy, wy / g[:, i("IyDx")])
+        zy = combine2(zy, wx / g[:, i("IxDy")], cy[:, i("IyDy")] / dsy, wy / g[:, i("IyDy")])
     # From the dt column: divergence u_z twice (rows 3 and 6), then the translation.
     p1, p2 = ct[:, i("Ix")], ct[:, i("Iy")]
     uz_x, uz_y = ct[:, i("IxDx")], ct[:, i("IyDy")]
@@ -159,7 +158,7 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
         with np.errstate(divide="ignore", invalid="ignore"):
             uz_x = uz_x - zx * p1 / v
             uz_y = uz_y - zy * p2 / v
-    uz = _combine(uz_x, 1.0 / g[:, i("IxDx")], uz_y, 1.0 / g[:, i("IyDy")])
+    uz = combine2(uz_x, 1.0 / g[:, i("IxDx")], uz_y, 1.0 / g[:, i("IyDy")])
     ux = p1 - x0 * uz
     uy = p2 - y0 * uz
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -40,8 +40,10 @@ def _add_estimator_args(p: argparse.ArgumentParser) -> None:
     from gridflow.estimator.filters import FILTER_NAMES
 
     g = p.add_argument_group("estimator settings")
-    g.add_argument("--model", choices=("bcc", "hf", "full"), default="full",
-                   help="brightness model (default full)")
+    g.add_argument("--model", type=_model_list, default=("full",),
+                   help="brightness model: bcc, hf, full (default), a comma-separated list, "
+                        "or 'all'; several models share one structure tensor, and each is "
+                        "written to OUTPUT with _MODEL before the suffix")
     g.add_argument("--sigma", type=float, default=16.0, help="Gaussian sigma, px (default 16)")
     g.add_argument("--window", type=int, default=65, help="Gaussian taps (default 65)")
     g.add_argument("--filters", choices=FILTER_NAMES, default="matched5",
@@ -57,6 +59,27 @@ def _add_estimator_args(p: argparse.ArgumentParser) -> None:
                    default="inverse_variance",
                    help="how the two estimates of v, z_x, z_y, u_z are combined "
                         "(default inverse_variance)")
+
+
+_MODELS = ("bcc", "hf", "full")
+
+
+def _model_list(text: str) -> tuple[str, ...]:
+    names = _MODELS if text == "all" else tuple(t.strip() for t in text.split(","))
+    bad = [t for t in names if t not in _MODELS]
+    if bad or not names or len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(
+            f"expected one of {', '.join(_MODELS)}, a comma-separated list of them or "
+            f"'all', got {text!r}")
+    return tuple(names)
+
+
+def _model_outputs(output: str, models) -> dict[str, Path]:
+    """One model: OUTPUT itself; several: OUTPUT with _MODEL before the suffix."""
+    out = Path(output)
+    if len(models) == 1:
+        return {models[0]: out}
+    return {m: out.with_name(f"{out.stem}_{m}{out.suffix}") for m in models}
 
 
 def _estimator_settings(a) -> dict:
@@ -107,10 +130,12 @@ def _sinusoid_fields():
 
 
 def cmd_estimate(a) -> int:
-    from gridflow.estimator import EstimatorSettings, estimate
+    from gridflow.estimator import EstimatorSettings, estimate_models
     from gridflow.io import check_output, save_estimate
 
-    check_output(a.output, suffixes=".npz", inputs=[a.input], what="-o")
+    outputs = _model_outputs(a.output, a.model)
+    for path in outputs.values():
+        check_output(path, suffixes=".npz", inputs=[a.input], what="-o")
     settings = _estimator_settings(a)
     EstimatorSettings(**settings)               # bad settings fail before the volume loads
     data = _load_input(a.input)
@@ -118,13 +143,15 @@ def cmd_estimate(a) -> int:
         # an image folder's grid.json may name its reference frame (--ref-frame overrides)
         settings["ref_frame"] = data.meta.get("ref_frame")
     t0 = time.perf_counter()
-    est = estimate(data.volume, data.focal_length, data.camera_spacing, model=a.model,
-                   principal_point=data.principal_point, **settings)
+    ests = estimate_models(data.volume, data.focal_length, data.camera_spacing,
+                           models=a.model, principal_point=data.principal_point, **settings)
     dt = time.perf_counter() - t0
-    save_estimate(a.output, est)
-    n_ok = int(np.isfinite(est["Z"][est.interior]).sum())
-    print(f"wrote {a.output}: model {a.model}, {n_ok}/{int(est.interior.sum())} interior "
-          f"pixels valid, {dt:.2f} s")
+    for m, est in ests.items():
+        save_estimate(outputs[m], est)
+        n_ok = int(np.isfinite(est["Z"][est.interior]).sum())
+        print(f"wrote {outputs[m]}: model {m}, {n_ok}/{int(est.interior.sum())} interior "
+              f"pixels valid")
+    print(f"estimated {', '.join(a.model)} in {dt:.2f} s")
     return 0
 
 

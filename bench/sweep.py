@@ -30,7 +30,7 @@ import numpy as np
 import pandas as pd
 
 from gridflow.estimator import MODELS, EstimatorSettings, InputError, estimate_models
-from gridflow.generators import SinusoidParams, check_params, make_sinusoid
+from gridflow.generators import SinusoidParams, add_noise, check_params, make_sinusoid
 
 from gridflow.io import atomic_write
 from gridflow.volume import physical_memory
@@ -391,8 +391,11 @@ def _point_key(spec: SweepSpec, point: Point, fingerprint: str, versions: dict) 
     return hashlib.sha1(blob.encode()).hexdigest()[:16]
 
 
-def run_point(spec: SweepSpec, point: Point) -> pd.DataFrame:
+def run_point(spec: SweepSpec, point: Point, clean=None) -> pd.DataFrame:
     """Generate one volume, estimate with every model, score every quantity.
+
+    ``clean``: the point's noise-free rendering, if already made (its noise is then added
+    by :func:`add_noise`, which gives the same volume as rendering with noise).
 
     Returns
     -------
@@ -400,7 +403,10 @@ def run_point(spec: SweepSpec, point: Point) -> pd.DataFrame:
         Rows with the columns of :data:`COLUMNS`.
     """
     params = spec.params(point)
-    sv = make_sinusoid(params)
+    if clean is None:
+        sv = make_sinusoid(params)
+    else:
+        sv = add_noise(clean, params.noise, params.seed)
     res = estimate_models(sv.volume, sv.focal_length, sv.camera_spacing, models=spec.models,
                           principal_point=sv.principal_point, **spec.estimator_settings())
     truth = dict(sv.truth)
@@ -442,6 +448,27 @@ def _write_part(df: pd.DataFrame, part) -> None:
 def _run_to_part(spec: SweepSpec, point: Point, part: str) -> str:
     _write_part(run_point(spec, point), part)
     return part
+
+
+def run_group(spec: SweepSpec, points: list[Point]) -> list[pd.DataFrame]:
+    """The points of one axis value (differing only in noise and seed): the noise-free
+    volume is rendered once and each point's noise added to it."""
+    clean = make_sinusoid(spec.params(points[0]).replace(noise=0.0, seed=0))
+    return [run_point(spec, p, clean) for p in points]
+
+
+def _run_group_to_parts(spec: SweepSpec, todo) -> list[str]:
+    for df, (_, part) in zip(run_group(spec, [p for p, _ in todo]), todo):
+        _write_part(df, part)
+    return [part for _, part in todo]
+
+
+def _groups(todo) -> list[list]:
+    """``todo`` ((point, part) pairs) grouped by (param, value), in order."""
+    groups: dict[tuple, list] = {}
+    for p, part in todo:
+        groups.setdefault((p.param, p.value), []).append((p, part))
+    return list(groups.values())
 
 
 def _worker_init(parent: int) -> None:
@@ -567,11 +594,11 @@ def run_sweep(spec: SweepSpec, output, *, workers: int | None = None, progress: 
             if executor is not None:
                 _run_dask(executor, spec, todo, bar)
             elif workers == 1 or len(todo) <= 1:
-                for p, part in todo:
-                    _run_to_part(spec, p, part)
-                    bar.update()
+                for group in _groups(todo):
+                    _run_group_to_parts(spec, group)
+                    bar.update(len(group))
             else:
-                _run_pool(spec, todo, min(workers, len(todo)), bar)
+                _run_pool(spec, todo, workers, bar)
     except (KeyboardInterrupt, _Terminated) as exc:
         bar.close()
         done = sum(Path(q).exists() for q in parts)
@@ -595,16 +622,18 @@ def _run_pool(spec: SweepSpec, todo, workers: int, bar) -> None:
     """The points in a local process pool; on an interrupt the workers are ended at once."""
     import multiprocessing as mp
 
-    ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+    groups = _groups(todo)
+    ex = ProcessPoolExecutor(max_workers=min(workers, len(groups)),
+                             mp_context=mp.get_context("spawn"),
                              initializer=_worker_init, initargs=(os.getpid(),))
     try:
         # the workers start during submit, in this (the main) thread: the death signal of
         # _worker_init is tied to it
         with _single_threaded_blas():
-            futs = [ex.submit(_run_to_part, spec, p, part) for p, part in todo]
+            futs = {ex.submit(_run_group_to_parts, spec, g): len(g) for g in groups}
         for fut in as_completed(futs):
             fut.result()        # re-raise a worker's error here
-            bar.update()
+            bar.update(futs[fut])
     except BaseException:
         # stop now: drop the queued points and end the running ones (their parts are
         # written atomically, so a killed point leaves nothing half-written)
@@ -622,11 +651,13 @@ def _run_dask(client, spec: SweepSpec, todo, bar) -> None:
     """The points on a dask cluster; each result comes back here and is written here."""
     from dask.distributed import as_completed as dask_completed
 
-    futs = {client.submit(run_point, spec, p, pure=False): part for p, part in todo}
+    futs = {client.submit(run_group, spec, [p for p, _ in g], pure=False): g
+            for g in _groups(todo)}
     try:
         for fut in dask_completed(list(futs)):
-            _write_part(fut.result(), futs[fut])
-            bar.update()
+            for df, (_, part) in zip(fut.result(), futs[fut]):
+                _write_part(df, part)
+            bar.update(len(futs[fut]))
     except BaseException:
         client.cancel(list(futs))
         raise

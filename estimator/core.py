@@ -124,7 +124,19 @@ class Estimate:
         return self.maps[name]
 
 
-def _check_volume(volume) -> np.ndarray:
+# The fast path runs its numba kernels from this many image pixels on.  Below, loading
+# them from numba's cache (about 0.5-0.8 s per process, measured) costs more than they
+# save, so small volumes take the same FFT tensor with LAPACK's eigh instead (same
+# answers within the fast path's tolerance; see bench/README.md).
+NUMBA_MIN_PIXELS = 128 * 128
+
+
+def _uses_numba(s, shape) -> bool:
+    return (s.method == "fast" and len(shape) == 5
+            and shape[-1] * shape[-2] >= NUMBA_MIN_PIXELS)
+
+
+def _check_volume(volume, fast: bool = False) -> np.ndarray:
     if not isinstance(volume, np.ndarray):
         raise InputError(f"volume must be a numpy array, got {type(volume).__name__}")
     if volume.ndim != 5:
@@ -134,7 +146,15 @@ def _check_volume(volume) -> np.ndarray:
         raise InputError(
             f"volume must be float32 or float64, got {volume.dtype}; convert integer "
             "images with volume.astype(np.float64) (intensities must be linear)")
+    if fast and volume.size:
+        from ._fast import announce_compilation, scan_volume
+
+        announce_compilation()                  # before the first kernel is compiled
+        scanned = scan_volume(volume)           # one parallel pass, no temporaries
+        if scanned is not None and scanned[0] == 0:
+            return volume, scanned[1]
     # frame by frame: a whole-volume boolean mask would cost a quarter of the volume
+    # (also the path that finds the first bad value for the message)
     count, first, amax = 0, None, 0.0
     for k in range(volume.shape[0]):
         bad = ~np.isfinite(volume[k])
@@ -179,7 +199,7 @@ def _axis_pair(name: str, samples: int, axis: str) -> FilterPair:
 
 def _prepare(volume, focal_length, camera_spacing, principal_point, s: EstimatorSettings,
              models: tuple[str, ...]):
-    volume, amax = _check_volume(volume)
+    volume, amax = _check_volume(volume, fast=_uses_numba(s, np.shape(volume)))
     T, Sy, Sx, H, W = volume.shape
     for m in models:
         if m not in MODELS:
@@ -302,13 +322,18 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     # J of a band takes rows * W * n^2 * 8 bytes; bound it (and the FFT work arrays) to
     # ~512 MB, so memory does not grow with the image.
     band = s.band_rows or max(16, int(512e6 // (W * n * n * 8)))
+    sums = None
+    numba_path = _uses_numba(s, vol.shape)
     if s.method == "fast":
-        from ._fast import (announce_compilation, null_space_fast, packed_index,
-                            structure_tensor_fft)
+        from .spectral import packed_index, structure_tensor_fft, unpack
 
-        announce_compilation()
         tensor = structure_tensor_fft
         pidx = packed_index(n)
+        if numba_path:
+            from ._fast import announce_compilation, camera_sums, null_space_fast
+
+            announce_compilation()
+            sums = camera_sums
     else:
         tensor = structure_tensor if s.method == "grouped" else structure_tensor_reference
         solver = null_space
@@ -322,14 +347,15 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         r1 = min(r0 + band, H - halo)
         rows_in = slice(r0 - halo, r1 + halo)
         ct = camera_time_signals(vol, frames, c["cam_x"], c["cam_y"], c["time"], rows_in,
-                                 scale=c["scale"])
+                                 scale=c["scale"], camera_sums=sums)
         sig = spatial_signals(ct, c["spatial"])
         del ct
         # J covers rows r0 - spatial.radius .. r1 + spatial.radius; keep the band
         rs = c["spatial"].radius
         if s.method == "fast":
             Jp = tensor(sig, tvals, union.rows, kernels, s.window // 2 + rs,
-                        cols=slice(halo, W - halo))
+                        cols=slice(halo, W - halo),
+                        backend="scipy" if numba_path else "numpy")
             Jp = Jp.reshape(Jp.shape[0], -1)
         else:
             J = tensor(sig, tvals, union.rows, kernels, s.window // 2)
@@ -340,8 +366,10 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         x0 = (xx - c["cx"]).ravel().astype(float)
         y0 = (yy - c["cy"]).ravel().astype(float)
         for m in models:
-            if s.method == "fast":
+            if numba_path:
                 P, g, err, valid, _ = null_space_fast(Jp, mdl[m], pidx[np.ix_(sub[m], sub[m])])
+            elif s.method == "fast":
+                P, g, err, valid = null_space(unpack(Jp, pidx[np.ix_(sub[m], sub[m])]), mdl[m])
             else:
                 P, g, err, valid = solver(Jf[:, sub[m][:, None], sub[m][None, :]], mdl[m])
             res = disentangle(P, g, mdl[m], x0, y0, c["f"], c["spacing"],

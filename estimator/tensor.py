@@ -10,8 +10,8 @@ Two implementations give the same J:
 * :func:`structure_tensor` groups the 120 entries by the product of base signals they
   share, sums frames before the (linear) spatial smoothing, and reuses the x-pass across
   the y-moments.
-* :func:`structure_tensor_reference` is the straightforward one: every entry, every
-  frame, its own separable correlation.  It is kept for checking and as the baseline of
+* :func:`structure_tensor_reference` is the straightforward one: frames summed, then every
+  entry its own separable correlation.  It is kept for checking and as the baseline of
   ``bench/``.
 """
 
@@ -20,7 +20,6 @@ from __future__ import annotations
 from itertools import combinations_with_replacement
 
 import numpy as np
-from scipy.ndimage import correlate1d
 
 from .filters import FilterPair
 from .models import ROWS
@@ -34,9 +33,26 @@ def _taps(kernel: np.ndarray, centre: int):
     return [(centre + o, float(w)) for o, w in zip(range(-r, r + 1), kernel) if w != 0.0]
 
 
+def _camera_sums_numpy(volume, needed, iy0, ix0, rows, weights):
+    """``out[c, j] = sum_(i, l) weights[c, i, l] * volume[needed[j], iy0 + i, ix0 + l, rows]``.
+
+    Shapes: weights (C, ny, nx); returns (C, len(needed), h, W), float64."""
+    ny, nx = weights.shape[1:]
+    ysl, xsl = slice(iy0, iy0 + ny), slice(ix0, ix0 + nx)
+    first = volume[needed[0], ysl, xsl, rows]
+    out = np.empty((weights.shape[0], len(needed)) + first.shape[2:])
+    for j, k in enumerate(needed):
+        block = volume[k, ysl, xsl, rows]              # view (ny, nx, h, W)
+        for c in range(weights.shape[0]):
+            out[c, j] = np.einsum("ij,ijhw->hw", weights[c], block, dtype=np.float64,
+                                  optimize=False)
+    return out
+
+
 def camera_time_signals(volume: np.ndarray, frames: np.ndarray, cam_x: FilterPair,
                         cam_y: FilterPair | None, time: FilterPair,
-                        rows: slice = slice(None), scale: float = 1.0) -> dict[str, np.ndarray]:
+                        rows: slice = slice(None), scale: float = 1.0,
+                        camera_sums=None) -> dict[str, np.ndarray]:
     """Filter the camera and time axes at the reference camera.
 
     Parameters
@@ -53,6 +69,10 @@ def camera_time_signals(volume: np.ndarray, frames: np.ndarray, cam_x: FilterPai
         grows with the band, not the volume.
     scale : float
         Factor applied to the intensities (folded into the camera weights).
+    camera_sums : callable, optional
+        ``camera_sums(volume, needed, iy0, ix0, rows, weights)``: the weighted sums over
+        the camera taps (see ``_camera_sums_numpy``, the default); the fast path passes a
+        parallel kernel with the same result.
 
     Returns
     -------
@@ -81,14 +101,11 @@ def camera_time_signals(volume: np.ndarray, frames: np.ndarray, cam_x: FilterPai
     combos = {"pp": scale * weights(ys, xs), "dp": scale * weights(ys, xd)}
     if cam_y is not None:
         combos["pd"] = scale * weights(yd, xs)
-    cams: dict[str, dict[int, np.ndarray]] = {key: {} for key in combos}
-    ysl = slice(iy[0], iy[-1] + 1)
-    xsl = slice(ix[0], ix[-1] + 1)
-    for k in needed:
-        block = volume[k, ysl, xsl, rows]              # view (ny, nx, h, W)
-        for key, w in combos.items():
-            cams[key][k] = np.einsum("ij,ijhw->hw", w, block, dtype=np.float64,
-                                     optimize=False)
+    sums = (camera_sums or _camera_sums_numpy)(
+        volume, np.asarray(needed, dtype=np.int64), iy[0], ix[0], rows,
+        np.ascontiguousarray(np.stack(list(combos.values()))))
+    cams = {key: {k: sums[c, j] for j, k in enumerate(needed)}
+            for c, key in enumerate(combos)}
 
     def along_t(src: dict[int, np.ndarray], kernel: np.ndarray) -> np.ndarray:
         return np.stack([sum(w * src[kk] for kk, w in _taps(kernel, int(k))) for k in frames])
@@ -121,17 +138,33 @@ def spatial_signals(ct: dict[str, np.ndarray], spatial: FilterPair) -> dict[str,
 
     def sep(job):
         a, kx, ky = job
-        a = correlate1d(np.asarray(a, dtype=np.float64), kx, axis=-1, mode="nearest")
-        return correlate1d(a, ky, axis=-2, mode="nearest")
+        return _correlate_nearest(_correlate_nearest(np.asarray(a, dtype=np.float64), kx, -1),
+                                  ky, -2)
 
     base = ct["p"]
     jobs = {"x": (base, d, p), "y": (base, p, d), "I": (base, p, p),
             "sx": (ct["sx"], p, p), "t": (ct["t"], p, p)}
     if "sy" in ct:
         jobs["sy"] = (ct["sy"], p, p)
-    # scipy.ndimage releases the GIL: the six signals are filtered on all cores
+    # numpy releases the GIL in its loops: the six signals are filtered on all cores
     with ThreadPoolExecutor() as ex:
         return dict(zip(jobs, ex.map(sep, jobs.values())))
+
+
+def _correlate_nearest(a: np.ndarray, k: np.ndarray, axis: int) -> np.ndarray:
+    """``out[i] = sum_j k[j] a[i + j - r]`` along ``axis`` with edge values repeated
+    beyond the ends (``scipy.ndimage.correlate1d(..., mode="nearest")``); a short filter
+    as a sum of shifted slices, so the estimator's signal path does not need scipy."""
+    a = np.moveaxis(a, axis, -1)
+    r = k.size // 2
+    n = a.shape[-1]
+    pad = np.concatenate([np.repeat(a[..., :1], r, axis=-1), a,
+                          np.repeat(a[..., -1:], r, axis=-1)], axis=-1)
+    out = k[0] * pad[..., 0:n]
+    for j in range(1, k.size):
+        if k[j] != 0.0:
+            out += k[j] * pad[..., j:j + n]
+    return np.moveaxis(out, -1, axis)
 
 
 def gaussian_moment_kernels(sigma: float, window: int) -> np.ndarray:
@@ -176,6 +209,8 @@ def _entry_groups(rows: tuple[str, ...]) -> dict[tuple, list]:
 
 
 def _smooth(img: np.ndarray, kx: np.ndarray, ky: np.ndarray, halo: int) -> np.ndarray:
+    from scipy.ndimage import correlate1d
+
     out = correlate1d(img, kx, axis=-1, mode="constant")
     out = correlate1d(out, ky, axis=-2, mode="constant")
     return out[halo:img.shape[0] - halo] if halo else out
@@ -202,6 +237,8 @@ def structure_tensor(signals: dict[str, np.ndarray], tvals: np.ndarray, rows: tu
     -------
     ndarray, shape (h - 2 halo, W, n, n), float64
     """
+    from scipy.ndimage import correlate1d
+
     n = len(rows)
     F, h, W = next(iter(signals.values())).shape
     wt = np.full(F, 1.0 / F)
@@ -225,16 +262,19 @@ def structure_tensor(signals: dict[str, np.ndarray], tvals: np.ndarray, rows: tu
 def structure_tensor_reference(signals: dict[str, np.ndarray], tvals: np.ndarray,
                                rows: tuple[str, ...], kernels: np.ndarray,
                                halo: int) -> np.ndarray:
-    """Straightforward structure tensor: each entry and frame smoothed on its own.
+    """Straightforward structure tensor: each entry smoothed on its own.
 
-    Same parameters and result as :func:`structure_tensor`.
+    The frames of the temporal window are summed first (the smoothing is linear and the
+    temporal weights uniform), then every one of the ``n (n + 1) / 2`` entries gets its own
+    separable correlation; no product or pass is shared between entries.  Same parameters
+    and result as :func:`structure_tensor`.
     """
     n = len(rows)
     F, h, W = next(iter(signals.values())).shape
-    J = np.zeros((h - 2 * halo, W, n, n))
+    J = np.empty((h - 2 * halo, W, n, n))
     for a, b, pair, tpow, px, py in _entry_keys(rows):
-        for f in range(F):
-            prod = signals[pair[0]][f] * signals[pair[1]][f]
-            J[..., a, b] += (float(tvals[f]) ** tpow / F) * _smooth(prod, kernels[px], kernels[py], halo)
+        coef = tvals.astype(float) ** tpow / F
+        prod = np.einsum("f,fhw,fhw->hw", coef, signals[pair[0]], signals[pair[1]])
+        J[..., a, b] = _smooth(prod, kernels[px], kernels[py], halo)
         J[..., b, a] = J[..., a, b]
     return J

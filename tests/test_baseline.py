@@ -3,12 +3,22 @@
 A reduced sweep (a subset of the values of ``bench/sweeps/paper.toml``, both noise
 levels, all models) is run and compared row by row with ``results/sweep_paper.csv``.
 
-Tolerance, the same for every quantity and measure: the stored CSV keeps 7 significant
-digits (rounding <= 5e-7 relative), and re-running the same code in another process, with
-another BLAS threading, reproduced every stored value within that rounding (max 4.9e-7,
-measured, including the rows where BCC has broken down).  ``RTOL = 1e-5`` is 20x that, so
-only a real change of an error curve fails.  Regenerate the curves on purpose with
-``make baseline``.
+Tolerances:
+
+* Where the model works (its stored Q_rel(U_Z) at that point at most 0.1, the claims
+  checker's breakdown level): the stored CSV keeps 7 significant digits (rounding <= 5e-7
+  relative), and re-running the same code in another process, with another BLAS
+  threading, reproduced every stored value within that rounding (max 4.9e-7, measured).
+  Two correct solvers agree to 9e-7 on these rows (the fast path against LAPACK's eigh,
+  measured).  ``RTOL = 1e-5`` is 10x that, so only a real change of an error curve fails.
+* Where the model has broken down, the mean error is dominated by a few pixels whose
+  null space is nearly degenerate (the k-th and (k+1)-th eigenvalues close), and those
+  pixels depend on the eigensolver: the solver the stored curves were made with and
+  LAPACK's eigh differ there by up to 1.9e-4, the present fast solver and eigh by 2e-5
+  (measured on this reduced sweep).  ``RTOL_BROKEN = 1e-3`` is 5x the larger spread;
+  such a row also must stay broken down.
+
+Regenerate the curves on purpose with ``make baseline``.
 """
 
 from pathlib import Path
@@ -17,13 +27,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gridflow.bench.claims import check_claims
+from gridflow.bench.claims import BREAK, check_claims
 from gridflow.bench.sweep import SweepSpec, run_sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 STORED = ROOT / "results" / "sweep_paper.csv"
 RTOL = {q: 1e-5 for q in ("Z", "Zx", "Zy", "Ux", "Uy", "Uz", "a1", "a2", "a1x", "a1y",
                           "a2x", "a2y")}
+RTOL_BROKEN = 1e-3
 REDUCED = {"a1": [0.0, 0.1, 2.0], "a1x": [0.002, 0.1], "a2": [-0.02, -0.3],
            "a2x": [-0.005, -0.05]}
 KEY = ["param", "value", "noise", "seed", "model", "quantity"]
@@ -44,16 +55,20 @@ def test_reduced_sweep_matches_stored_curves(stored, tmp_path):
     assert (m._merge == "both").all(), "stored curves lack points of the reduced sweep"
     # 9 values x 2 noise levels = 18 points, each 6 (bcc) + 8 (hf) + 12 (full) rows
     assert len(m) == len(fresh) == 18 * (6 + 8 + 12)
+    uz = stored[stored.quantity == "Uz"].set_index(KEY[:-1]).q_rel
+    broken = [uz.loc[tuple(getattr(r, k) for k in KEY[:-1])] > BREAK for r in m.itertuples()]
     bad = []
     for col in ("q_rel", "q_abs"):
-        for r in m.itertuples():
+        for r, br in zip(m.itertuples(), broken):
             a, b = getattr(r, col), getattr(r, col + "_stored")
             if np.isnan(a) and np.isnan(b):
                 continue
-            if not np.isclose(a, b, rtol=RTOL[r.quantity], atol=0):
+            if not np.isclose(a, b, rtol=RTOL_BROKEN if br else RTOL[r.quantity], atol=0):
                 bad.append(f"{r.param}={r.value} noise={r.noise} {r.model} {r.quantity} "
                            f"{col}: fresh {a:.7g}, stored {b:.7g}")
     assert not bad, "error curves moved:\n" + "\n".join(bad[:20])
+    fresh_uz = m[m.quantity == "Uz"]
+    assert ((fresh_uz.q_rel > BREAK) == (fresh_uz.q_rel_stored > BREAK)).all()
     assert (m.n_invalid == m.n_invalid_stored).all()
 
 

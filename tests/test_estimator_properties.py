@@ -70,13 +70,18 @@ def test_grouped_and_reference_tensors_agree():
         _close(a[name], b[name], 1e-8, name)
 
 
+@pytest.mark.parametrize("size", [80, 160])
 @pytest.mark.parametrize("kw", [dict(a1=0.3, a1x=0.003, a2=-0.01), dict(noise=0.025, a1=0.3)])
-def test_fast_path_agrees_with_reference(kw):
-    """The fast path (FFT smoothing, inverse subspace iteration) against the straightforward
-    one (entry-by-entry FIR, LAPACK eigh), noise-free and noisy.  Requirement: 1e-6 of each
-    quantity's scale; measured <= 2e-10 (the residual criterion 1e-13 trace J bounds the
-    subspace error by ~1e-13 / eigen-gap, and the gap is >= 1e-7 here)."""
-    sv = make_sinusoid(**kw, **SMALL)
+def test_fast_path_agrees_with_reference(kw, size):
+    """The fast path (FFT smoothing; numba kernels and the lane solver from 128^2 pixels
+    on, below that LAPACK eigh) against the straightforward one (entry-by-entry FIR,
+    LAPACK eigh), noise-free and noisy.  Requirement: 1e-6 of each quantity's scale;
+    measured <= 2e-10 (the residual criterion 1e-13 trace J bounds the subspace error by
+    ~1e-13 / eigen-gap, and the gap is >= 1e-7 here)."""
+    from gridflow.estimator.core import EstimatorSettings, _uses_numba
+
+    sv = make_sinusoid(**kw, **dict(SMALL, height=size, width=size))
+    assert _uses_numba(EstimatorSettings(), sv.volume.shape) == (size >= 128)
     for model in ("hf", "full"):
         a = estimate(sv.volume, sv.focal_length, sv.camera_spacing, model=model, method="fast")
         b = estimate(sv.volume, sv.focal_length, sv.camera_spacing, model=model,
@@ -86,11 +91,16 @@ def test_fast_path_agrees_with_reference(kw):
 
 
 def test_band_processing_is_invisible():
+    """Bands change only the FFT lengths, hence the roundoff of J: ~1e-15 of trace J
+    (float64 FFT, lengths <= 256).  The null space moves by at most that over the gap
+    between the k-th and (k+1)-th eigenvalues, >= 5.6e-6 trace J on this volume
+    (measured), i.e. <= 2e-10 of each quantity's scale; we allow 1e-9 (measured 2.8e-12
+    with numpy.fft, < 1e-12 with scipy.fft)."""
     sv = make_sinusoid(**SMALL)
     a = estimate(sv.volume, sv.focal_length, sv.camera_spacing, band_rows=3)
     b = estimate(sv.volume, sv.focal_length, sv.camera_spacing, band_rows=1000)
     for name in a.maps:
-        _close(a[name], b[name], 1e-12, name)
+        _close(a[name], b[name], 1e-9, name)
 
 
 def test_float32_matches_float64(run):

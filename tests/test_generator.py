@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from gridflow.generators import SinusoidParams, make_sinusoid
+from gridflow.generators import SinusoidParams, add_noise, make_sinusoid
 
 # Rendering is float64 throughout; these comparisons are exact up to roundoff of sin/exp
 # of arguments <= ~1e3, i.e. ~1e-12.
@@ -106,3 +106,20 @@ def test_bad_parameters(kw, match):
 def test_unknown_parameter():
     with pytest.raises(ValueError, match="unknown sinusoid parameter"):
         SinusoidParams().replace(a3=1.0)
+
+
+@pytest.mark.parametrize("noise, seed", [(0.025, 0), (0.1, 7), (0.0, 3)])
+def test_add_noise_is_rendering_with_noise(noise, seed):
+    clean = make_sinusoid(height=40, width=48, a1=0.2, a2x=-0.003)
+    a = add_noise(clean, noise, seed)
+    b = make_sinusoid(height=40, width=48, a1=0.2, a2x=-0.003, noise=noise, seed=seed)
+    np.testing.assert_array_equal(a.volume, b.volume)
+    assert a.params == b.params or noise == 0
+    assert clean.params.noise == 0 and not np.shares_memory(a.volume, clean.volume) or noise == 0
+
+
+def test_add_noise_refuses_what_it_cannot_reproduce():
+    with pytest.raises(ValueError, match="noise-free"):
+        add_noise(make_sinusoid(height=40, width=40, noise=0.01), 0.02, 0)
+    with pytest.raises(ValueError, match="float64"):
+        add_noise(make_sinusoid(height=40, width=40, dtype=np.float32), 0.02, 0)

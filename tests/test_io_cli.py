@@ -98,6 +98,29 @@ def test_cli_bcc_writes_only_its_maps(tmp_path):
     assert meta["settings"]["sigma"] == 8.0
 
 
+def test_cli_several_models_share_one_run(tmp_path, capsys):
+    """``--model all`` writes one file per model, each equal to a single-model run."""
+    vol, est = tmp_path / "vol.npz", tmp_path / "est.npz"
+    main(["generate", *SMALL, "--a1", "0.3", "-o", str(vol)])
+    assert main(["estimate", str(vol), "--model", "all", "-o", str(est)]) == 0
+    assert sorted(p.name for p in tmp_path.glob("est_*.npz")) == [
+        "est_bcc.npz", "est_full.npz", "est_hf.npz"]
+    assert not est.exists()
+    one = tmp_path / "one.npz"
+    assert main(["estimate", str(vol), "--model", "hf", "-o", str(one)]) == 0
+    a, _, meta = load_estimate(tmp_path / "est_hf.npz")
+    b, _, _ = load_estimate(one)
+    assert meta["model"] == "hf"
+    for k in b:
+        np.testing.assert_array_equal(a[k], b[k])   # the same computation, bit for bit
+    assert main(["estimate", str(vol), "--model", "bcc,full", "-o", str(tmp_path / "two.npz")]) == 0
+    assert sorted(p.name for p in tmp_path.glob("two_*.npz")) == ["two_bcc.npz", "two_full.npz"]
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        main(["estimate", str(vol), "--model", "bcc,xyz", "-o", str(tmp_path / "x.npz")])
+    assert "bcc,xyz" in capsys.readouterr().err
+
+
 def test_cli_errors_are_clear(tmp_path, capsys):
     assert main(["estimate", str(tmp_path / "none.npz"), "-o", str(tmp_path / "e.npz")]) == 2
     assert "no such file" in capsys.readouterr().err

@@ -83,17 +83,30 @@ def test_rows_and_order_do_not_depend_on_execution(tmp_path):
     assert (tmp_path / "a.json").exists()
 
 
+def test_one_rendering_per_axis_value_gives_the_same_rows():
+    """A sweep renders each noise-free volume once and adds each point's noise to it
+    (add_noise): the rows are those of rendering every point on its own, to the bit."""
+    spec = _spec()
+    spec.noise, spec.seeds = [0.0, 0.025], [0, 1]
+    points = [p for p in spec.points() if (p.param, p.value) == (spec.points()[0].param,
+                                                                 spec.points()[0].value)]
+    assert len(points) == 4
+    grouped = sweep_mod.run_group(spec, points)
+    for p, df in zip(points, grouped):
+        pd.testing.assert_frame_equal(df, run_point(spec, p), check_exact=True)
+
+
 def test_interrupted_sweep_leaves_no_csv_and_resumes(tmp_path, monkeypatch):
     spec = _spec()
     calls, armed = [], [True]
     real = sweep_mod.run_point
 
-    def flaky(spec_, point):
+    def flaky(spec_, point, clean=None):
         calls.append(point)
         if armed[0] and len(calls) == 3:
             armed[0] = False
             raise KeyboardInterrupt("killed")
-        return real(spec_, point)
+        return real(spec_, point, clean)
 
     monkeypatch.setattr(sweep_mod, "run_point", flaky)
     out = tmp_path / "s.csv"

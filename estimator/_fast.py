@@ -412,123 +412,143 @@ def _finish(X, M, MtM, Minv, L, y, k, nq, perm, grows, i, P, g):
         g[i, perm[r0]] = s2
 
 
-# Pixels per lane block: the lane kernels loop over the block innermost, so that the
-# compiler can use SIMD across pixels (measured on this machine: 8 lanes run the solver
-# in half the time of the per-pixel code; numba/LLVM vectorises only part of it).
+# Pixels per lane block: the lane kernels loop over the block innermost, so that LLVM
+# can use SIMD across pixels.
 _LANES = 8
-# Fixed subspace iterations of the lane solver; pixels whose k-th Ritz residual is then
-# above _CONV * trace go on in the scalar path (up to MAX_ITER), then to LAPACK.
-LANE_ITERS = 2
+# Steps of the parameter-vector iteration before a pixel goes to the scalar path, and
+# its stopping rule: the error left after the last step, estimated as change * rho with
+# rho = change / previous change (linear convergence at rate lambda_k / lambda_k+1),
+# below _P_TOL times max(1, max|P|) (P's fixed rows are a unit matrix).
+P_ITERS = 5
+# Pixels per tile copied out of the packed planes (120 x 256 doubles: 240 KB, in L2).
+_TILE = 256
+_P_TOL = 1e-13
 _FM = {"contract", "arcp"}
 
 
 @njit(fastmath=_FM, error_model="numpy", cache=True)
-def _lanes_jacobi(H, V, w, m, sweeps):
-    """Eigen-decompositions of _LANES small symmetric matrices at once (H: (m, m,
-    lanes), destroyed): ascending w (m, lanes), eigenvectors in the columns of V.
+def _lanes_p(Jp, N, idx, perm, i0, k, nq, grows, rank_tol, m_tol, warm, A, L, dl, Li, X,
+             Y, Pn, Minv, G, H, lw, P_out, g_out, err_out, settled):
+    """One block of _LANES pixels ``i0 ...`` (columns of the planes ``Jp``, of which the
+    first ``N`` are pixels; lanes beyond repeat the last) by the parameter-vector
+    iteration.
 
-    A fixed number of cyclic sweeps (quadratic convergence: 6 take 4x4 matrices to
-    roundoff), written branch-free over the lanes."""
+    P = E M^-1 does not depend on the basis of the null space, so instead of an
+    orthonormal basis and a Rayleigh-Ritz step the vectors P themselves are iterated:
+    ``P <- (J + δI)^-1 P``, renormalised so that the fixed rows are the unit matrix
+    again.  The start is the previous block's P in the same lane (``warm[p]``), else the
+    least-squares solution ``P_q = -(J_qq + δI)^-1 J_qf`` (it differs from the TLS one by
+    O(λ_k / λ_k+1)).  The reference path's checks are made by sufficient tests on
+    numbers the iteration has anyway; a lane failing one is not ``settled`` and goes to
+    the exact scalar path:
+
+    * texture: by interlacing λ_k+1(J) >= λ_min(J_qq) >= 1 / trace((J_qq + δI)^-1) - δ;
+    * M well conditioned: for an orthonormal basis E of span(P) the singular values of
+      its fixed rows are those of (P^T P)^(-1/2), so smin >= 1 / sqrt(trace(P^T P)).
+
+    The model error λ_k is the largest Ritz value of span(P), from ``P^T J P`` and
+    ``P^T P``; ``J P`` comes from the last solve (``J Y = X - δ Y``).
+    """
+    n = A.shape[0]
     nl = _LANES
-    for i in range(m):
-        for j in range(m):
-            for p in range(nl):
-                V[i, j, p] = 1.0 if i == j else 0.0
-    c = np.empty(nl)
-    s = np.empty(nl)
-    for _ in range(sweeps):
-        for pp in range(m):
-            for qq in range(pp + 1, m):
-                for p in range(nl):
-                    hpq = H[pp, qq, p]
-                    theta = (H[qq, qq, p] - H[pp, pp, p]) / (2.0 * hpq)
-                    sg = 1.0 if theta >= 0 else -1.0
-                    t = sg / (abs(theta) + np.sqrt(theta * theta + 1.0))
-                    # hpq == 0 (or theta overflowing): no rotation
-                    t = t if (hpq != 0.0 and np.isfinite(theta)) else 0.0
-                    cc = 1.0 / np.sqrt(t * t + 1.0)
-                    c[p] = cc
-                    s[p] = t * cc
-                for kk in range(m):
-                    for p in range(nl):
-                        hkp, hkq = H[kk, pp, p], H[kk, qq, p]
-                        H[kk, pp, p] = c[p] * hkp - s[p] * hkq
-                        H[kk, qq, p] = s[p] * hkp + c[p] * hkq
-                for kk in range(m):
-                    for p in range(nl):
-                        hpk, hqk = H[pp, kk, p], H[qq, kk, p]
-                        H[pp, kk, p] = c[p] * hpk - s[p] * hqk
-                        H[qq, kk, p] = s[p] * hpk + c[p] * hqk
-                for kk in range(m):
-                    for p in range(nl):
-                        vkp, vkq = V[kk, pp, p], V[kk, qq, p]
-                        V[kk, pp, p] = c[p] * vkp - s[p] * vkq
-                        V[kk, qq, p] = s[p] * vkp + c[p] * vkq
-    for i in range(m):
-        for p in range(nl):
-            w[i, p] = H[i, i, p]
-    # ascending order: bubble passes of compare-and-swap, branch-free per lane
-    for _ in range(m - 1):
-        for i in range(m - 1):
-            for p in range(nl):
-                sw = w[i, p] > w[i + 1, p]
-                a, bq = w[i, p], w[i + 1, p]
-                w[i, p] = bq if sw else a
-                w[i + 1, p] = a if sw else bq
-                for kk in range(m):
-                    va, vb = V[kk, i, p], V[kk, i + 1, p]
-                    V[kk, i, p] = vb if sw else va
-                    V[kk, i + 1, p] = va if sw else vb
-
-
-@njit(fastmath=_FM, error_model="numpy", cache=True)
-def _lanes_block(Jp, idx, perm, i0, k, A, L, dinv, X, Y, AY, H, Vh, th, tr, ok, res):
-    """Lane part of one block of pixels ``i0 .. i0 + lanes - 1``: gather J, Cholesky of
-    J + δI, LANE_ITERS inverse subspace iterations from X, one Rayleigh-Ritz step.
-    Leaves X = Ritz vectors, th = Ritz values, res = the k-th pair's squared residual,
-    ok = factorisation succeeded.  Pixels past the end repeat the last one."""
-    N = Jp.shape[1]
-    n, m = X.shape[0], X.shape[1]
-    nl = _LANES
+    # gather (rows in perm order: the k fixed rows last)
     for a in range(n):
         for bb in range(a, n):
             e = idx[perm[a], perm[bb]]
             for p in range(nl):
-                q = min(i0 + p, N - 1)
-                A[a, bb, p] = Jp[e, q]
-                A[bb, a, p] = Jp[e, q]
+                v = Jp[e, min(i0 + p, N - 1)]
+                A[a, bb, p] = v
+                A[bb, a, p] = v
     for p in range(nl):
         t = 0.0
         for a in range(n):
             t += A[a, a, p]
-        tr[p] = t
-        ok[p] = t > 0.0 and np.isfinite(t)
-    # Cholesky of A + δI; a non-positive pivot marks the lane and is replaced by 1 so the
-    # other lanes go on
+        lw[0, p] = t                              # trace
+        lw[1, p] = _SHIFT * t                     # δ
+        settled[p] = t > 0.0 and np.isfinite(t)
+    # Cholesky of A + δI, reciprocal diagonal in dl; a bad pivot marks the lane
     for j in range(n):
         for p in range(nl):
-            dinv[j, p] = A[j, j, p] + _SHIFT * tr[p]
+            lw[2, p] = A[j, j, p] + lw[1, p]
         for kk in range(j):
             for p in range(nl):
-                dinv[j, p] -= L[j, kk, p] * L[j, kk, p]
+                lw[2, p] -= L[j, kk, p] * L[j, kk, p]
         for p in range(nl):
-            sp = dinv[j, p]
-            good = sp > 0.0
-            ok[p] = ok[p] and good
-            d = np.sqrt(sp) if good else 1.0
+            s = lw[2, p]
+            good = s > 0.0
+            settled[p] = settled[p] and good
+            d = np.sqrt(s) if good else 1.0
             L[j, j, p] = d
-            dinv[j, p] = 1.0 / d
+            dl[j, p] = 1.0 / d
         for i in range(j + 1, n):
             for p in range(nl):
-                AY[i, 0, p] = A[i, j, p]
+                lw[3, p] = A[i, j, p]
             for kk in range(j):
                 for p in range(nl):
-                    AY[i, 0, p] -= L[i, kk, p] * L[j, kk, p]
+                    lw[3, p] -= L[i, kk, p] * L[j, kk, p]
             for p in range(nl):
-                L[i, j, p] = AY[i, 0, p] * dinv[j, p]
-    for _ in range(LANE_ITERS):
-        # Y = (L L^T)^-1 X: forward then back substitution, all columns and lanes
-        for c in range(m):
+                L[i, j, p] = lw[3, p] * dl[j, p]
+    # Li = L_qq^-1 (lower), column by column; trace and selected diagonal of Li^T Li
+    for c in range(nq):
+        for i in range(c):
+            for p in range(nl):
+                Li[i, c, p] = 0.0
+        for p in range(nl):
+            Li[c, c, p] = dl[c, p]
+        for i in range(c + 1, nq):
+            for p in range(nl):
+                lw[3, p] = 0.0
+            for kk in range(c, i):
+                for p in range(nl):
+                    lw[3, p] -= L[i, kk, p] * Li[kk, c, p]
+            for p in range(nl):
+                Li[i, c, p] = lw[3, p] * dl[i, p]
+    for p in range(nl):
+        lw[4, p] = 0.0                            # trace of (J_qq + δI)^-1
+    for c in range(nq):
+        for p in range(nl):
+            lw[5, p] = 0.0
+        for i in range(c, nq):
+            for p in range(nl):
+                lw[5, p] += Li[i, c, p] * Li[i, c, p]
+        for p in range(nl):
+            lw[4, p] += lw[5, p]
+        for t in range(grows.size):
+            if grows[t] == c:
+                for p in range(nl):
+                    g_out[t, p] = lw[5, p]
+    for p in range(nl):
+        settled[p] = settled[p] and (1.0 / lw[4, p] - lw[1, p] > rank_tol * lw[0, p])
+    # start
+    cold = False
+    for p in range(nl):
+        cold = cold or not warm[p]
+    if cold:
+        # P_q = -Li^T (Li J_qf); lanes with a warm start keep theirs
+        for c in range(k):
+            for i in range(nq):
+                for p in range(nl):
+                    Y[i, c, p] = 0.0
+                for kk in range(i + 1):
+                    for p in range(nl):
+                        Y[i, c, p] += Li[i, kk, p] * A[kk, nq + c, p]
+            for i in range(nq):
+                for p in range(nl):
+                    lw[3, p] = 0.0
+                for kk in range(i, nq):
+                    for p in range(nl):
+                        lw[3, p] += Li[kk, i, p] * Y[kk, c, p]
+                for p in range(nl):
+                    X[i, c, p] = X[i, c, p] if warm[p] else -lw[3, p]
+            for i in range(k):
+                for p in range(nl):
+                    X[nq + i, c, p] = 1.0 if i == c else 0.0
+    for p in range(nl):
+        lw[6, p] = 0.0                            # previous change
+        lw[7, p] = 0.0                            # converged (0/1)
+    for it in range(P_ITERS):
+        # Y = (L L^T)^-1 X
+        for c in range(k):
             for r in range(n):
                 for p in range(nl):
                     Y[r, c, p] = X[r, c, p]
@@ -536,147 +556,162 @@ def _lanes_block(Jp, idx, perm, i0, k, A, L, dinv, X, Y, AY, H, Vh, th, tr, ok, 
                     for p in range(nl):
                         Y[r, c, p] -= L[r, kk, p] * Y[kk, c, p]
                 for p in range(nl):
-                    Y[r, c, p] *= dinv[r, p]
+                    Y[r, c, p] *= dl[r, p]
             for r in range(n - 1, -1, -1):
                 for kk in range(r + 1, n):
                     for p in range(nl):
                         Y[r, c, p] -= L[kk, r, p] * Y[kk, c, p]
                 for p in range(nl):
-                    Y[r, c, p] *= dinv[r, p]
-        # orthonormalise (modified Gram-Schmidt, twice)
-        for c in range(m):
-            for _ in range(2):
-                for i in range(c):
-                    for p in range(nl):
-                        th[0, p] = 0.0
-                    for r in range(n):
-                        for p in range(nl):
-                            th[0, p] += Y[r, i, p] * Y[r, c, p]
-                    for r in range(n):
-                        for p in range(nl):
-                            Y[r, c, p] -= th[0, p] * Y[r, i, p]
+                    Y[r, c, p] *= dl[r, p]
+        # Minv = (fixed rows of Y)^-1 by the adjugate
+        if k == 3:
             for p in range(nl):
-                th[0, p] = 0.0
-            for r in range(n):
-                for p in range(nl):
-                    th[0, p] += Y[r, c, p] * Y[r, c, p]
+                a00, a01, a02 = Y[nq, 0, p], Y[nq, 1, p], Y[nq, 2, p]
+                a10, a11, a12 = Y[nq + 1, 0, p], Y[nq + 1, 1, p], Y[nq + 1, 2, p]
+                a20, a21, a22 = Y[nq + 2, 0, p], Y[nq + 2, 1, p], Y[nq + 2, 2, p]
+                c00 = a11 * a22 - a12 * a21
+                c01 = a02 * a21 - a01 * a22
+                c02 = a01 * a12 - a02 * a11
+                inv = 1.0 / (a00 * c00 + a10 * c01 + a20 * c02)
+                Minv[0, 0, p] = c00 * inv
+                Minv[0, 1, p] = c01 * inv
+                Minv[0, 2, p] = c02 * inv
+                Minv[1, 0, p] = (a12 * a20 - a10 * a22) * inv
+                Minv[1, 1, p] = (a00 * a22 - a02 * a20) * inv
+                Minv[1, 2, p] = (a02 * a10 - a00 * a12) * inv
+                Minv[2, 0, p] = (a10 * a21 - a11 * a20) * inv
+                Minv[2, 1, p] = (a01 * a20 - a00 * a21) * inv
+                Minv[2, 2, p] = (a00 * a11 - a01 * a10) * inv
+        else:
             for p in range(nl):
-                th[0, p] = 1.0 / np.sqrt(th[0, p])
-            for r in range(n):
-                for p in range(nl):
-                    Y[r, c, p] *= th[0, p]
+                a00, a01 = Y[nq, 0, p], Y[nq, 1, p]
+                a10, a11 = Y[nq + 1, 0, p], Y[nq + 1, 1, p]
+                inv = 1.0 / (a00 * a11 - a01 * a10)
+                Minv[0, 0, p] = a11 * inv
+                Minv[0, 1, p] = -a01 * inv
+                Minv[1, 0, p] = -a10 * inv
+                Minv[1, 1, p] = a00 * inv
+        # Pn = Y Minv; change and size
+        for p in range(nl):
+            lw[8, p] = 0.0                        # change
+            lw[9, p] = 1.0                        # max(1, max|Pn|)
         for r in range(n):
-            for c in range(m):
+            for c in range(k):
                 for p in range(nl):
-                    X[r, c, p] = Y[r, c, p]
-    # Rayleigh-Ritz: AY = A Y, H = Y^T A Y, its eigenpairs, X = Y V
+                    lw[3, p] = 0.0
+                for bb in range(k):
+                    for p in range(nl):
+                        lw[3, p] += Y[r, bb, p] * Minv[bb, c, p]
+                for p in range(nl):
+                    v = lw[3, p]
+                    Pn[r, c, p] = v
+                    lw[8, p] = max(lw[8, p], abs(v - X[r, c, p]))
+                    lw[9, p] = max(lw[9, p], abs(v))
+        done = True
+        for p in range(nl):
+            ch = lw[8, p]
+            rho = ch / lw[6, p] if lw[6, p] > 0.0 else 1.0
+            conv = ch == 0.0 or (rho < 0.5 and ch * rho <= _P_TOL * lw[9, p])
+            lw[7, p] = 1.0 if conv else 0.0
+            lw[6, p] = ch
+            done = done and (conv or not settled[p])
+        if done:
+            break
+        if it < P_ITERS - 1:
+            for r in range(n):
+                for c in range(k):
+                    for p in range(nl):
+                        X[r, c, p] = Pn[r, c, p]
+    # G = Pn^T Pn, H = Pn^T X Minv - δ G  (X: the input of the last solve)
     for r in range(n):
-        for c in range(m):
+        for c in range(k):
             for p in range(nl):
-                AY[r, c, p] = 0.0
-            for cc in range(n):
+                lw[3, p] = 0.0
+            for q in range(k):
                 for p in range(nl):
-                    AY[r, c, p] += A[r, cc, p] * Y[cc, c, p]
-    for a in range(m):
-        for bb in range(a, m):
+                    lw[3, p] += X[r, q, p] * Minv[q, c, p]
             for p in range(nl):
+                Y[r, c, p] = lw[3, p]             # X Minv = J Pn + δ Pn
+    for a in range(k):
+        for bb in range(a, k):
+            for p in range(nl):
+                G[a, bb, p] = 0.0
                 H[a, bb, p] = 0.0
             for r in range(n):
                 for p in range(nl):
-                    H[a, bb, p] += Y[r, a, p] * AY[r, bb, p]
+                    G[a, bb, p] += Pn[r, a, p] * Pn[r, bb, p]
+                    H[a, bb, p] += Pn[r, a, p] * Y[r, bb, p]
             for p in range(nl):
-                H[bb, a, p] = H[a, bb, p]
-    _lanes_jacobi(H, Vh, th, m, 6)
-    for r in range(n):
-        for c in range(m):
-            for p in range(nl):
-                X[r, c, p] = 0.0
-            for q in range(m):
-                for p in range(nl):
-                    X[r, c, p] += Y[r, q, p] * Vh[q, c, p]
-    # residual |A x - θ x|^2 of the k-th Ritz pair
+                H[a, bb, p] -= lw[1, p] * G[a, bb, p]
+                G[bb, a, p] = G[a, bb, p]
     for p in range(nl):
-        res[p] = 0.0
-    for r in range(n):
-        for p in range(nl):
-            dinv[0, p] = -th[k - 1, p] * X[r, k - 1, p]
-        for q in range(m):
-            for p in range(nl):
-                dinv[0, p] += AY[r, q, p] * Vh[q, k - 1, p]
-        for p in range(nl):
-            res[p] += dinv[0, p] * dinv[0, p]
-
-
-@njit(fastmath=_FM, error_model="numpy", cache=True)
-def _lanes_finish(X, th, tr, ok, res, L, dinv, k, nq, rank_tol, m_tol, MM, MV, mw,
-                  Minv, Pl, gl, grows, settled):
-    """Checks and results of a lane block: the tests of :func:`_accept` (texture:
-    θ_{k+1} > rank_tol trace; M well conditioned) and the convergence test,
-    ``P = X_k M^-1`` into ``Pl`` (n, k, lanes; rows in perm order) and the weights into
-    ``gl`` (grows, lanes).  ``settled[p]``: the lane's pixel is done."""
-    n, m = X.shape[0], X.shape[1]
-    nl = _LANES
-    for a in range(k):
-        for bb in range(k):
-            for p in range(nl):
-                MM[a, bb, p] = 0.0
-            for r in range(k):
-                for p in range(nl):
-                    MM[a, bb, p] += X[nq + r, a, p] * X[nq + r, bb, p]
-    _lanes_jacobi(MM, MV, mw, k, 6)
+        trg = 0.0
+        for a in range(k):
+            trg += G[a, a, p]
+        settled[p] = settled[p] and lw[7, p] == 1.0 and trg * m_tol * m_tol < 1.0
+    # largest Ritz value: eigenvalues of C = Lg^-1 H Lg^-T, G = Lg Lg^T
     for p in range(nl):
-        settled[p] = (ok[p] and np.sqrt(res[p]) <= _CONV * tr[p]
-                      and th[k, p] > rank_tol * tr[p]
-                      and np.sqrt(max(mw[0, p], 0.0)) > m_tol)
-    # M^-1 = adj(M) / det(M), M = X[nq:, :k] (k = 2 or 3; well conditioned when settled)
-    if k == 3:
-        for p in range(nl):
-            a00, a01, a02 = X[nq, 0, p], X[nq, 1, p], X[nq, 2, p]
-            a10, a11, a12 = X[nq + 1, 0, p], X[nq + 1, 1, p], X[nq + 1, 2, p]
-            a20, a21, a22 = X[nq + 2, 0, p], X[nq + 2, 1, p], X[nq + 2, 2, p]
-            c00 = a11 * a22 - a12 * a21
-            c01 = a02 * a21 - a01 * a22
-            c02 = a01 * a12 - a02 * a11
-            inv = 1.0 / (a00 * c00 + a10 * c01 + a20 * c02)
-            Minv[0, 0, p] = c00 * inv
-            Minv[0, 1, p] = c01 * inv
-            Minv[0, 2, p] = c02 * inv
-            Minv[1, 0, p] = (a12 * a20 - a10 * a22) * inv
-            Minv[1, 1, p] = (a00 * a22 - a02 * a20) * inv
-            Minv[1, 2, p] = (a02 * a10 - a00 * a12) * inv
-            Minv[2, 0, p] = (a10 * a21 - a11 * a20) * inv
-            Minv[2, 1, p] = (a01 * a20 - a00 * a21) * inv
-            Minv[2, 2, p] = (a00 * a11 - a01 * a10) * inv
-    else:
-        for p in range(nl):
-            a00, a01 = X[nq, 0, p], X[nq, 1, p]
-            a10, a11 = X[nq + 1, 0, p], X[nq + 1, 1, p]
-            inv = 1.0 / (a00 * a11 - a01 * a10)
-            Minv[0, 0, p] = a11 * inv
-            Minv[0, 1, p] = -a01 * inv
-            Minv[1, 0, p] = -a10 * inv
-            Minv[1, 1, p] = a00 * inv
+        if k == 3:
+            g00, g10, g11 = G[0, 0, p], G[1, 0, p], G[1, 1, p]
+            g20, g21, g22 = G[2, 0, p], G[2, 1, p], G[2, 2, p]
+            l00 = np.sqrt(g00)
+            l10 = g10 / l00
+            l20 = g20 / l00
+            l11 = np.sqrt(g11 - l10 * l10)
+            l21 = (g21 - l20 * l10) / l11
+            l22 = np.sqrt(g22 - l20 * l20 - l21 * l21)
+            h00, h01, h02 = H[0, 0, p], H[0, 1, p], H[0, 2, p]
+            h11, h12, h22 = H[1, 1, p], H[1, 2, p], H[2, 2, p]
+            # W = Lg^-1 H (rows), then C = W Lg^-T
+            w00 = h00 / l00
+            w01 = h01 / l00
+            w02 = h02 / l00
+            w10 = (h01 - l10 * w00) / l11
+            w11 = (h11 - l10 * w01) / l11
+            w12 = (h12 - l10 * w02) / l11
+            w20 = (h02 - l20 * w00 - l21 * w10) / l22
+            w21 = (h12 - l20 * w01 - l21 * w11) / l22
+            w22 = (h22 - l20 * w02 - l21 * w12) / l22
+            c00 = w00 / l00
+            c10 = w10 / l00
+            c20 = w20 / l00
+            c11 = (w11 - l10 * c10) / l11
+            c21 = (w21 - l10 * c20) / l11
+            c22 = (w22 - l20 * c20 - l21 * c21) / l22
+            # symmetric 3x3: the largest eigenvalue by the trigonometric formula
+            q = (c00 + c11 + c22) / 3.0
+            p1 = c10 * c10 + c20 * c20 + c21 * c21
+            p2 = (c00 - q) ** 2 + (c11 - q) ** 2 + (c22 - q) ** 2 + 2.0 * p1
+            pp = np.sqrt(p2 / 6.0)
+            if pp > 0.0:
+                b00, b11, b22 = (c00 - q) / pp, (c11 - q) / pp, (c22 - q) / pp
+                b10, b20, b21 = c10 / pp, c20 / pp, c21 / pp
+                det = (b00 * (b11 * b22 - b21 * b21) - b10 * (b10 * b22 - b21 * b20)
+                       + b20 * (b10 * b21 - b11 * b20))
+                rr = min(1.0, max(-1.0, det / 2.0))
+                err_out[p] = q + 2.0 * pp * np.cos(np.arccos(rr) / 3.0)
+            else:
+                err_out[p] = q
+        else:
+            g00, g10, g11 = G[0, 0, p], G[1, 0, p], G[1, 1, p]
+            l00 = np.sqrt(g00)
+            l10 = g10 / l00
+            l11 = np.sqrt(g11 - l10 * l10)
+            h00, h01, h11 = H[0, 0, p], H[0, 1, p], H[1, 1, p]
+            w00 = h00 / l00
+            w01 = h01 / l00
+            w10 = (h01 - l10 * w00) / l11
+            w11 = (h11 - l10 * w01) / l11
+            c00 = w00 / l00
+            c10 = w10 / l00
+            c11 = (w11 - l10 * c10) / l11
+            mean = 0.5 * (c00 + c11)
+            err_out[p] = mean + np.sqrt(0.25 * (c00 - c11) ** 2 + c10 * c10)
+        settled[p] = settled[p] and np.isfinite(err_out[p])
     for r in range(n):
-        for cc in range(k):
+        for c in range(k):
             for p in range(nl):
-                Pl[r, cc, p] = 0.0
-            for bb in range(k):
-                for p in range(nl):
-                    Pl[r, cc, p] += X[r, bb, p] * Minv[bb, cc, p]
-    # g_r = (J_qq + δI)^-1_rr = |L_qq^-1 e_r|^2 (forward substitution from row r)
-    for t in range(grows.size):
-        r0 = grows[t]
-        for p in range(nl):
-            gl[t, p] = 0.0
-        for a in range(r0, nq):
-            for p in range(nl):
-                dinv[a, p] = 1.0 if a == r0 else 0.0
-            for kk in range(r0, a):
-                for p in range(nl):
-                    dinv[a, p] -= L[a, kk, p] * dinv[kk, p]
-            for p in range(nl):
-                dinv[a, p] /= L[a, a, p]
-                gl[t, p] += dinv[a, p] * dinv[a, p]
+                P_out[r, c, p] = Pn[r, c, p]
 
 
 @njit(parallel=True, cache=True)
@@ -685,41 +720,33 @@ def _solve_all(Jp, idx, perm, k, grows, rank_tol, m_tol, max_iter, P, g, err, va
     last), so that the leading block of the Cholesky factor of J + δI is that of
     J_qq + δI, which gives the weights g.
 
-    Pixels go through in blocks of _LANES (the lane kernels, each lane warm-started
-    from the subspace of the pixel _LANES to its left); a pixel the lanes do not settle
-    goes through the scalar path :func:`_pixel`, from the subspace the lanes reached."""
+    Pixels go through in blocks of _LANES (:func:`_lanes_p`, each lane warm-started from
+    the pixel _LANES to its left); a pixel the lanes do not settle goes through the
+    scalar path :func:`_pixel` (inverse subspace iteration, then LAPACK)."""
     N = Jp.shape[1]
     n = idx.shape[0]
     nq = n - k
     m = k + 1
     nl = _LANES
-    nblocks = (N + nl - 1) // nl
-    per = (nblocks + _CHUNKS - 1) // _CHUNKS
+    per = ((N + nl - 1) // nl + _CHUNKS - 1) // _CHUNKS      # blocks per chunk
     for c in prange(_CHUNKS):
         A = np.empty((n, n, nl))
         L = np.zeros((n, n, nl))
-        dinv = np.empty((n, nl))
-        XL = np.empty((n, m, nl))
-        YL = np.empty((n, m, nl))
-        AYL = np.empty((n, m, nl))
-        HL = np.empty((m, m, nl))
-        VL = np.empty((m, m, nl))
-        thL = np.empty((m, nl))
-        trL = np.empty(nl)
-        okL = np.zeros(nl, dtype=np.bool_)
-        resL = np.empty(nl)
-        MM = np.empty((k, k, nl))
-        MV = np.empty((k, k, nl))
-        mw = np.empty((k, nl))
+        dl = np.empty((n, nl))
+        Li = np.zeros((nq, nq, nl))
+        X = np.zeros((n, k, nl))
+        Y = np.empty((n, k, nl))
+        Pn = np.empty((n, k, nl))
         MinvL = np.empty((k, k, nl))
+        G = np.empty((k, k, nl))
+        H = np.empty((k, k, nl))
+        lw = np.empty((10, nl))
         Pl = np.empty((n, k, nl))
         gl = np.empty((grows.size, nl))
-        settledL = np.zeros(nl, dtype=np.bool_)
-        for r in range(n):
-            for j in range(m):
-                for p in range(nl):
-                    XL[r, j, p] = np.cos(1.0 + 0.618 * (r + 1) * (j + 1))
-        # scalar work space
+        el = np.empty(nl)
+        warm = np.zeros(nl, dtype=np.bool_)
+        settled = np.zeros(nl, dtype=np.bool_)
+        # scalar fallback work space
         As = np.empty((n, n))
         Bs = np.empty((n, n))
         Ls = np.zeros((n, n))
@@ -736,42 +763,59 @@ def _solve_all(Jp, idx, perm, k, grows, rank_tol, m_tol, max_iter, P, g, err, va
         Vk = np.empty((k, k))
         wk = np.empty(k)
         Minv = np.empty((k, k))
-        for blk in range(c * per, min(nblocks, (c + 1) * per)):
-            i0 = blk * nl
-            _lanes_block(Jp, idx, perm, i0, k, A, L, dinv, XL, YL, AYL, HL, VL, thL,
-                         trL, okL, resL)
-            _lanes_finish(XL, thL, trL, okL, resL, L, dinv, k, nq, rank_tol, m_tol, MM, MV,
-                          mw, MinvL, Pl, gl, grows, settledL)
-            for p in range(min(nl, N - i0)):
-                i = i0 + p
-                if settledL[p]:
-                    for r in range(n):
-                        for cc in range(k):
-                            P[i, perm[r], cc] = Pl[r, cc, p]
-                    for t in range(grows.size):
-                        g[i, perm[grows[t]]] = gl[t, p]
-                    err[i] = thL[k - 1, p]
-                    valid[i] = True
-                else:
-                    tr = trL[p]
-                    for a in range(n):
-                        for bb in range(n):
-                            As[a, bb] = A[a, bb, p]
-                    for r in range(n):
-                        for j in range(m):
-                            Xs[r, j] = XL[r, j, p]
-                    solved, fell = _pixel(As, tr, Xs, okL[p], Ls, Bs, Ys, AYs, Hs, Vs, ths,
-                                          ys, bs, M, MtM, Vk, wk, Minv, k, nq, perm, grows,
-                                          rank_tol, m_tol, max_iter, i, P, g, err, valid)
-                    nfall[c, 0] += 1
-                    if fell:
-                        nfall[c, 1] += 1
-                    # warm start of this lane: the subspace found, or the dense start
-                    # again after a pixel without one
-                    for r in range(n):
-                        for j in range(m):
-                            XL[r, j, p] = (Xs[r, j] if solved
-                                           else np.cos(1.0 + 0.618 * (r + 1) * (j + 1)))
+        tile = np.empty((Jp.shape[0], _TILE))
+        c0 = c * per * nl
+        c1 = min(N, (c + 1) * per * nl)
+        for t0 in range(c0, c1, _TILE):
+            nt = min(_TILE, c1 - t0)
+            # a tile of the planes, copied plane by plane (contiguous runs): the lanes then
+            # gather from cache instead of from 120 planes spread over memory
+            for e in range(Jp.shape[0]):
+                for j in range(nt):
+                    tile[e, j] = Jp[e, t0 + j]
+            _tile_blocks(tile, nt, t0, idx, perm, k, nq, grows, rank_tol, m_tol, max_iter,
+                         warm, A, L, dl, Li, X, Y, Pn, MinvL, G, H, lw, Pl, gl, el, settled,
+                         As, Bs, Ls, Xs, Ys, AYs, Hs, Vs, ths, ys, bs, M, MtM, Vk, wk, Minv,
+                         P, g, err, valid, nfall, c)
+
+
+@njit(cache=True)
+def _tile_blocks(tile, nt, t0, idx, perm, k, nq, grows, rank_tol, m_tol, max_iter, warm, A,
+                 L, dl, Li, X, Y, Pn, MinvL, G, H, lw, Pl, gl, el, settled, As, Bs, Ls, Xs,
+                 Ys, AYs, Hs, Vs, ths, ys, bs, M, MtM, Vk, wk, Minv, P, g, err, valid, nfall,
+                 c):
+    """The lane blocks of one tile (pixels t0 .. t0 + nt - 1), and the scalar path for
+    the pixels they do not settle."""
+    n = idx.shape[0]
+    nl = _LANES
+    for b0 in range(0, nt, nl):
+        _lanes_p(tile, nt, idx, perm, b0, k, nq, grows, rank_tol, m_tol, warm, A, L, dl, Li,
+                 X, Y, Pn, MinvL, G, H, lw, Pl, gl, el, settled)
+        for p in range(min(nl, nt - b0)):
+            i = t0 + b0 + p
+            if settled[p]:
+                for r in range(n):
+                    for cc in range(k):
+                        P[i, perm[r], cc] = Pl[r, cc, p]
+                        X[r, cc, p] = Pl[r, cc, p]
+                for t in range(grows.size):
+                    g[i, perm[grows[t]]] = gl[t, p]
+                err[i] = el[p]
+                valid[i] = True
+                warm[p] = True
+            else:
+                tr = 0.0
+                for a in range(n):
+                    for bb in range(n):
+                        As[a, bb] = A[a, bb, p]
+                    tr += As[a, a]
+                _, fell = _pixel(As, tr, Xs, False, Ls, Bs, Ys, AYs, Hs, Vs, ths, ys, bs,
+                                 M, MtM, Vk, wk, Minv, k, nq, perm, grows, rank_tol,
+                                 m_tol, max_iter, i, P, g, err, valid)
+                nfall[c, 0] += 1
+                if fell:
+                    nfall[c, 1] += 1
+                warm[p] = False
 
 
 def null_space_fast(Jp: np.ndarray, model: Model, idx: np.ndarray):

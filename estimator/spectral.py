@@ -53,13 +53,9 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
         import scipy.fft as sfft
 
         fast_len = sfft.next_fast_len
-        workers = workers or -1
-        rfft2 = lambda a, s: sfft.rfft2(a, s=s, workers=workers)       # noqa: E731
-        irfft2 = lambda a, s: sfft.irfft2(a, s=s, workers=workers)     # noqa: E731
+        kw = {"workers": workers or -1}
     else:
-        sfft, fast_len = np.fft, _next_smooth
-        rfft2 = lambda a, s: np.fft.rfft2(a, s=s)                      # noqa: E731
-        irfft2 = lambda a, s: np.fft.irfft2(a, s=s)                    # noqa: E731
+        sfft, fast_len, kw = np.fft, _next_smooth, {}
     shape = (fast_len(h + 2 * R, real=True), fast_len(W + 2 * R, real=True))
     # convolution kernels = flipped correlation kernels, zero-padded to the FFT size
     kx = np.zeros((3, shape[1]))
@@ -68,26 +64,28 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
     ky[:, :2 * R + 1] = kernels[:, ::-1]
     KX = sfft.rfft(kx, axis=1)
     KY = sfft.fft(ky, axis=1)
-    K2 = {}
     idx = packed_index(n)
     out_rows = h - 2 * halo
     c0, c1, _ = cols.indices(W)
     Jp = np.empty((n * (n + 1) // 2, out_rows, c1 - c0))
+    # output index i + R holds the correlation centred on input index i
+    keep_rows = slice(R + halo, R + h - halo)
+    keep_cols = slice(R + c0, R + c1)
     for (pair, tpow), entries in _entry_groups(rows).items():
         coef = wt * tvals.astype(float) ** tpow
         prod = np.einsum("f,fhw,fhw->hw", coef, signals[pair[0]], signals[pair[1]])
-        FP = rfft2(prod, shape)
+        FP = sfft.rfft2(prod, s=shape, **kw)
+        # The kernel is separable, so the inverse is too: the y-inverse once per y-moment,
+        # then the x-inverse (complex to real) per (x, y) moment pair, on the kept rows only.
+        ypass = {}
         done = {}
         for a, b, _, _, px, py in entries:
             if (px, py) not in done:
-                if (px, py) not in K2:
-                    K2[(px, py)] = KY[py][:, None] * KX[px][None, :]
-                full = irfft2(FP * K2[(px, py)], shape)
-                # output index i + R holds the correlation centred on input index i
-                done[(px, py)] = full[R + halo:R + h - halo, R + c0:R + c1]
-                Jp[idx[a, b]] = done[(px, py)]
-            else:
-                Jp[idx[a, b]] = done[(px, py)]
+                if py not in ypass:
+                    ypass[py] = sfft.ifft(FP * KY[py][:, None], axis=0, **kw)[keep_rows]
+                full = sfft.irfft(ypass[py] * KX[px][None, :], n=shape[1], axis=1, **kw)
+                done[(px, py)] = full[:, keep_cols]
+            Jp[idx[a, b]] = done[(px, py)]
     return Jp
 
 

@@ -422,6 +422,8 @@ _LANES = 8
 P_ITERS = 5
 # Pixels per tile copied out of the packed planes (120 x 256 doubles: 240 KB, in L2).
 _TILE = 256
+# Lane blocks skipped after one in which no lane settled.
+_SKIP_BLOCKS = 16
 _P_TOL = 1e-13
 _FM = {"contract", "arcp"}
 
@@ -764,6 +766,8 @@ def _solve_all(Jp, idx, perm, k, grows, rank_tol, m_tol, max_iter, P, g, err, va
         wk = np.empty(k)
         Minv = np.empty((k, k))
         tile = np.empty((Jp.shape[0], _TILE))
+        # have[0]: Xs holds a solved subspace; have[1]: lane blocks still to skip
+        have = np.zeros(2, dtype=np.int64)
         c0 = c * per * nl
         c1 = min(N, (c + 1) * per * nl)
         for t0 in range(c0, c1, _TILE):
@@ -776,21 +780,37 @@ def _solve_all(Jp, idx, perm, k, grows, rank_tol, m_tol, max_iter, P, g, err, va
             _tile_blocks(tile, nt, t0, idx, perm, k, nq, grows, rank_tol, m_tol, max_iter,
                          warm, A, L, dl, Li, X, Y, Pn, MinvL, G, H, lw, Pl, gl, el, settled,
                          As, Bs, Ls, Xs, Ys, AYs, Hs, Vs, ths, ys, bs, M, MtM, Vk, wk, Minv,
-                         P, g, err, valid, nfall, c)
+                         P, g, err, valid, nfall, c, have)
 
 
 @njit(cache=True)
 def _tile_blocks(tile, nt, t0, idx, perm, k, nq, grows, rank_tol, m_tol, max_iter, warm, A,
                  L, dl, Li, X, Y, Pn, MinvL, G, H, lw, Pl, gl, el, settled, As, Bs, Ls, Xs,
                  Ys, AYs, Hs, Vs, ths, ys, bs, M, MtM, Vk, wk, Minv, P, g, err, valid, nfall,
-                 c):
+                 c, have):
     """The lane blocks of one tile (pixels t0 .. t0 + nt - 1), and the scalar path for
     the pixels they do not settle."""
     n = idx.shape[0]
     nl = _LANES
     for b0 in range(0, nt, nl):
-        _lanes_p(tile, nt, idx, perm, b0, k, nq, grows, rank_tol, m_tol, warm, A, L, dl, Li,
-                 X, Y, Pn, MinvL, G, H, lw, Pl, gl, el, settled)
+        if have[1] > 0:
+            # the lanes settled nothing in a recent block (a broken-down model, a
+            # textureless region): straight to the scalar path for a while
+            have[1] -= 1
+            for p in range(min(nl, nt - b0)):
+                settled[p] = False
+                warm[p] = False
+                for a in range(n):
+                    for bb in range(n):
+                        A[a, bb, p] = tile[idx[perm[a], perm[bb]], b0 + p]
+        else:
+            _lanes_p(tile, nt, idx, perm, b0, k, nq, grows, rank_tol, m_tol, warm, A, L, dl,
+                     Li, X, Y, Pn, MinvL, G, H, lw, Pl, gl, el, settled)
+            any_settled = False
+            for p in range(min(nl, nt - b0)):
+                any_settled = any_settled or settled[p]
+            if not any_settled:
+                have[1] = _SKIP_BLOCKS
         for p in range(min(nl, nt - b0)):
             i = t0 + b0 + p
             if settled[p]:
@@ -809,9 +829,13 @@ def _tile_blocks(tile, nt, t0, idx, perm, k, nq, grows, rank_tol, m_tol, max_ite
                     for bb in range(n):
                         As[a, bb] = A[a, bb, p]
                     tr += As[a, a]
-                _, fell = _pixel(As, tr, Xs, False, Ls, Bs, Ys, AYs, Hs, Vs, ths, ys, bs,
-                                 M, MtM, Vk, wk, Minv, k, nq, perm, grows, rank_tol,
-                                 m_tol, max_iter, i, P, g, err, valid)
+                # warm start: the subspace of the last pixel this path solved (when the
+                # lanes fail, as where a model has broken down, they fail for runs of
+                # neighbouring pixels, taken here in order)
+                solved, fell = _pixel(As, tr, Xs, have[0] == 1, Ls, Bs, Ys, AYs, Hs, Vs, ths,
+                                      ys, bs, M, MtM, Vk, wk, Minv, k, nq, perm, grows,
+                                      rank_tol, m_tol, max_iter, i, P, g, err, valid)
+                have[0] = 1 if solved else 0
                 nfall[c, 0] += 1
                 if fell:
                     nfall[c, 1] += 1

@@ -40,10 +40,11 @@ def _add_estimator_args(p: argparse.ArgumentParser) -> None:
     from gridflow.estimator.filters import FILTER_NAMES
 
     g = p.add_argument_group("estimator settings")
-    g.add_argument("--model", type=_model_list, default=("full",),
-                   help="brightness model: bcc, hf, full (default), a comma-separated list, "
-                        "or 'all'; several models share one structure tensor, and each is "
-                        "written to OUTPUT with _MODEL before the suffix")
+    g.add_argument("--model", type=_model_list, default=None,
+                   help="brightness model: bcc, hf, full (default; bcc for a light field of "
+                        "one frame), a comma-separated list, or 'all'; several models share "
+                        "one structure tensor, and each is written to OUTPUT with _MODEL "
+                        "before the suffix")
     g.add_argument("--sigma", type=float, default=16.0, help="Gaussian sigma, px (default 16)")
     g.add_argument("--window", type=int, default=65, help="Gaussian taps (default 65)")
     g.add_argument("--filters", choices=FILTER_NAMES, default="matched5",
@@ -88,11 +89,15 @@ def _estimator_settings(a) -> dict:
                 slant_correction=not a.no_slant_correction, combine=a.combine)
 
 
-def _load_input(path: str):
+def _load_input(path: str, views: int | None = None):
     from gridflow.io import load_volume
 
     p = Path(path)
     if p.is_dir():
+        from gridflow.hci import is_hci_scene, load_hci
+
+        if is_hci_scene(p):                      # an HCI 4-D light field benchmark scene
+            return load_hci(p, views=views)
         from gridflow.loader import load_folder  # camera-grid image folder with grid.json
 
         return load_folder(p)
@@ -133,12 +138,14 @@ def cmd_estimate(a) -> int:
     from gridflow.estimator import EstimatorSettings, estimate_models
     from gridflow.io import check_output, save_estimate
 
+    settings = _estimator_settings(a)
+    EstimatorSettings(**settings)               # bad settings fail before the volume loads
+    data = _load_input(a.input, views=a.views)
+    if a.model is None:
+        a.model = ("bcc",) if data.volume.shape[0] == 1 else ("full",)
     outputs = _model_outputs(a.output, a.model)
     for path in outputs.values():
         check_output(path, suffixes=".npz", inputs=[a.input], what="-o")
-    settings = _estimator_settings(a)
-    EstimatorSettings(**settings)               # bad settings fail before the volume loads
-    data = _load_input(a.input)
     if settings["ref_frame"] is None:
         # an image folder's grid.json may name its reference frame (--ref-frame overrides)
         settings["ref_frame"] = data.meta.get("ref_frame")
@@ -146,7 +153,16 @@ def cmd_estimate(a) -> int:
     ests = estimate_models(data.volume, data.focal_length, data.camera_spacing,
                            models=a.model, principal_point=data.principal_point, **settings)
     dt = time.perf_counter() - t0
+    geometry = data.meta.get("hci")
     for m, est in ests.items():
+        if geometry and "disparity" in est.maps:
+            # converging HCI cameras: depth in metres from the disparity and the focus
+            # distance (parameters.cfg); the slopes stay those of the parallel-camera
+            # reading (camera steps as the unit of length)
+            from gridflow.hci import depth_from_disparity
+
+            est.maps["Z"] = depth_from_disparity(est.maps["disparity"], geometry)
+            est.settings["Z_units"] = "m (HCI geometry)"
         save_estimate(outputs[m], est)
         n_ok = int(np.isfinite(est["Z"][est.interior]).sum())
         print(f"wrote {outputs[m]}: model {m}, {n_ok}/{int(est.interior.sum())} interior "
@@ -160,7 +176,7 @@ def cmd_evaluate(a) -> int:
     from .metrics import evaluate
 
     maps, interior, meta = load_estimate(a.estimate)
-    truth = dict(_load_input(a.volume).truth)
+    truth = dict(_load_input(a.volume, views=3).truth)
     if not truth:
         raise ValueError(f"{a.volume}: holds no truth maps to evaluate against")
     shape = next(iter(truth.values())).shape
@@ -175,6 +191,14 @@ def cmd_evaluate(a) -> int:
     rows = evaluate(maps, truth, interior)
     if not rows:
         raise ValueError(f"{a.estimate} and {a.volume} share no quantity names")
+    if "disparity" in maps and "disparity" in truth:
+        from .peers import hci_metrics
+
+        h = hci_metrics(maps["disparity"], truth["disparity"])
+        print(f"HCI benchmark scores of the disparity (15-px border left out, "
+              f"{h['n_pixels']} pixels, {h['n_nonfinite']} not finite): MSE x 100 = "
+              f"{h['mse_x100']:.3f}, BadPix(0.07) = {h['badpix_007']:.2f} %, BadPix(0.03) = "
+              f"{h['badpix_003']:.2f} %, BadPix(0.01) = {h['badpix_001']:.2f} %")
     print(f"model {meta.get('model', '?')}: Eq. 22 over interior pixels with finite truth"
           + (" and the truth's own interior mask" if own is not None else ""))
     # Eq. 22: the relative error where the truth is non-zero (and of one sign), else the
@@ -390,7 +414,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_generate)
 
     p = sub.add_parser("estimate", help="estimate depth, slopes, motion, brightness")
-    p.add_argument("input", help="volume .npz or camera-grid folder with grid.json")
+    p.add_argument("input", help="volume .npz, camera-grid folder with grid.json, or an HCI "
+                                 "light field scene folder (input_Cam000.png ...)")
+    p.add_argument("--views", type=_positive_int, default=5,
+                   help="HCI scenes: the central VIEWS x VIEWS views to use (odd; default "
+                        "5, what 5-tap camera filters reach)")
     _add_estimator_args(p)
     p.add_argument("-o", "--output", required=True, help="output estimate .npz")
     p.set_defaults(func=cmd_estimate)

@@ -85,7 +85,7 @@ MAX_ITER = 8
 _SHIFT = 1e-13
 _CONV = 1e-13
 _CHUNKS = 256
-_N_KERNELS = 13         # functions compiled with cache=True below
+_N_KERNELS = 12         # functions compiled with cache=True below
 
 
 @njit(parallel=True, cache=True)

@@ -233,6 +233,25 @@ def _prepare(volume, focal_length, camera_spacing, principal_point, s: Estimator
     k_ref = (T - 1) // 2 if s.ref_frame is None else int(s.ref_frame)
     if not 0 <= k_ref < T:
         raise InputError(f"ref_frame {k_ref} outside the {T} frames")
+    if T == 1:
+        # a static light field: depth and slopes from the camera axes alone
+        bad = [m for m in models if m != "bcc"]
+        if bad:
+            raise InputError(f"models {bad} need a time axis (brightness change over "
+                             "frames); a light field of one frame takes model 'bcc'")
+        if s.temporal_radius not in (None, 0):
+            raise InputError(f"temporal_radius {s.temporal_radius}: a light field of one "
+                             "frame has no time axis")
+        R = s.window // 2
+        halo = R + spatial.radius
+        if H <= 2 * halo or W <= 2 * halo:
+            raise InputError(f"image {H}x{W} too small for a {s.window}-tap window and "
+                             f"{spatial.taps}-tap filters: need more than {2 * halo} "
+                             "pixels per side")
+        return dict(volume=volume, scale=_unit_scale(amax), f=f,
+                    spacing=(sp[0], sp[1] if Sy > 1 else 0.0), cx=cx, cy=cy,
+                    spatial=spatial, cam_x=cam_x, cam_y=cam_y, time=None, k_ref=0, R_t=0,
+                    halo=halo, grid_dims=2 if Sy > 1 else 1, static=True)
     reach = min(k_ref, T - 1 - k_ref)
     needs_t = any(m != "bcc" for m in models)   # I t rows need t to vary over Omega
     time = None
@@ -258,7 +277,7 @@ def _prepare(volume, focal_length, camera_spacing, principal_point, s: Estimator
     grid_dims = 2 if Sy > 1 else 1
     return dict(volume=volume, scale=_unit_scale(amax), f=f, spacing=(sp[0], sp[1] if Sy > 1 else 0.0), cx=cx, cy=cy,
                 spatial=spatial, cam_x=cam_x, cam_y=cam_y, time=time, k_ref=k_ref, R_t=R_t,
-                halo=halo, grid_dims=grid_dims)
+                halo=halo, grid_dims=grid_dims, static=False)
 
 
 def estimate(volume: np.ndarray, focal_length: float, camera_spacing, *, model: str = "full",
@@ -310,9 +329,9 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     c = _prepare(volume, focal_length, camera_spacing, principal_point, s, models)
     vol = c["volume"]
     T, Sy, Sx, H, W = vol.shape
-    mdl = {m: get_model(m, c["grid_dims"]) for m in models}
+    mdl = {m: get_model(m, c["grid_dims"], c["static"]) for m in models}
     union = get_model("full" if "full" in models else ("hf" if "hf" in models else "bcc"),
-                      c["grid_dims"])
+                      c["grid_dims"], c["static"])
     sub = {m: np.array([union.index(r) for r in mdl[m].rows]) for m in models}
     frames = np.arange(c["k_ref"] - c["R_t"], c["k_ref"] + c["R_t"] + 1)
     tvals = frames - c["k_ref"]
@@ -382,6 +401,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
             for name, val in res.items():
                 out[m][name][r0:r1, halo:W - halo] = val.reshape(r1 - r0, cols.size)
     used = dict(s.__dict__, filters_xy=c["spatial"].name, filters_sx=c["cam_x"].name,
-                filters_sy=c["cam_y"].name if c["cam_y"] else None, filters_t=c["time"].name,
+                filters_sy=c["cam_y"].name if c["cam_y"] else None,
+                filters_t=c["time"].name if c["time"] else None,
                 temporal_radius=c["R_t"], ref_frame=c["k_ref"])
     return {m: Estimate(out[m], m, interior, dict(used, model=m)) for m in models}

@@ -23,7 +23,8 @@ Each data row is a base signal times a temporal power and a spatial monomial:
 =====  ============  ====================================  ===========
 
 BCC uses rows 1-9, HF rows 1-10 and 13, the full model all 15.  A 1-D camera grid
-(``ds_y = 0``) drops rows 5 and 8.
+(``ds_y = 0``) drops rows 5 and 8; a static light field (one frame) drops row 9 and has
+no ``dt`` column.
 """
 
 from __future__ import annotations
@@ -76,6 +77,7 @@ class Model:
     name: str
     rows: tuple[str, ...]
     grid_dims: int
+    static: bool = False
 
     @property
     def n(self) -> int:
@@ -83,28 +85,41 @@ class Model:
 
     @property
     def null_dim(self) -> int:
-        return self.grid_dims + 1
+        return self.grid_dims + (0 if self.static else 1)
 
     @property
     def fixed_rows(self) -> tuple[str, ...]:
-        """Rows carrying ``ds_x, (ds_y,) dt`` (the block M of Sec. 3, step 3)."""
-        return ("Isx", "Isy", "It") if self.grid_dims == 2 else ("Isx", "It")
+        """Rows carrying ``ds_x, (ds_y,) dt`` (the block M of Sec. 3, step 3); no ``dt``
+        for a static light field."""
+        rows = ("Isx", "Isy", "It") if self.grid_dims == 2 else ("Isx", "It")
+        return rows[:-1] if self.static else rows
 
     def index(self, row: str) -> int:
         return self.rows.index(row)
 
     @property
     def outputs(self) -> tuple[str, ...]:
-        return ("Z", "Zx", "Zy", "Ux", "Uy", "Uz") + BRIGHTNESS_OUTPUTS[self.name]
+        if self.static:
+            return ("Z", "Zx", "Zy", "disparity")
+        return ("Z", "Zx", "Zy", "disparity", "Ux", "Uy", "Uz") + BRIGHTNESS_OUTPUTS[self.name]
 
 
-def get_model(name: str, grid_dims: int = 2) -> Model:
-    """Return the model ``name`` for a ``grid_dims``-dimensional camera grid."""
+def get_model(name: str, grid_dims: int = 2, static: bool = False) -> Model:
+    """Return the model ``name`` for a ``grid_dims``-dimensional camera grid.
+
+    ``static``: a light field of one frame.  Only brightness constancy across the views
+    applies (``bcc``); the rows are the geometric ones without ``I_t``, and the null space
+    has one dimension per camera axis."""
     if name not in _ROWS_2D:
         raise ValueError(f"unknown model {name!r}; expected one of {MODELS}")
     if grid_dims not in (1, 2):
         raise ValueError(f"grid_dims must be 1 or 2, got {grid_dims}")
     rows = _ROWS_2D[name]
+    if static:
+        if name != "bcc":
+            raise ValueError(f"model {name!r} needs a time axis (brightness change over "
+                             "frames); a light field of one frame takes model 'bcc'")
+        rows = tuple(r for r in rows if r != "It")
     if grid_dims == 1:
         rows = tuple(r for r in rows if r not in ("IyDx", "Isy"))
-    return Model(name, rows, grid_dims)
+    return Model(name, rows, grid_dims, static)

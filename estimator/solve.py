@@ -139,7 +139,7 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
         # the twice-estimated quantities: inverse-variance weights, or a plain average
         return _combine(x1, w1, x2, w2) if combine != "mean" else (x1 + x2) / 2.0
 
-    cx, ct = P[..., 0], P[..., -1]
+    cx, ct = P[..., 0], (None if model.static else P[..., -1])
     # From the ds columns: disparity v and projected slopes, per world unit of ds.
     v = cx[:, i("Ix")] / dsx
     zx = cx[:, i("IxDx")] / dsx
@@ -151,6 +151,14 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
         v = combine2(v, wx / g[:, i("Ix")], cy[:, i("Iy")] / dsy, wy / g[:, i("Iy")])
         zx = combine2(zx, wx / g[:, i("IxDx")], cy[:, i("IyDx")] / dsy, wy / g[:, i("IyDx")])
         zy = combine2(zy, wx / g[:, i("IxDy")], cy[:, i("IyDy")] / dsy, wy / g[:, i("IyDy")])
+    # disparity in pixels per camera step along x, the HCI benchmark's sign: a point moves
+    # by v ds_x per step in gridflow's frame, by -d in the benchmark's
+    disparity = -v * dsx
+    if model.static:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            Z = -f / v
+            den = 1.0 + (zx * x0 + zy * y0) * Z / f
+            return {"Z": Z, "Zx": zx * Z / den, "Zy": zy * Z / den, "disparity": disparity}
     # From the dt column: divergence u_z twice (rows 3 and 6), then the translation.
     p1, p2 = ct[:, i("Ix")], ct[:, i("Iy")]
     uz_x, uz_y = ct[:, i("IxDx")], ct[:, i("IyDy")]
@@ -174,6 +182,7 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
             "Z": Z,
             "Zx": Zx,
             "Zy": Zy,
+            "disparity": disparity,
             "Ux": Z * ux / f,
             "Uy": Z * uy / f,
             "Uz": -Z * uz,

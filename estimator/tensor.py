@@ -63,7 +63,8 @@ def camera_time_signals(volume: np.ndarray, frames: np.ndarray, cam_x: FilterPai
     cam_x, cam_y : FilterPair
         Filters across the camera axes, applied at the centre camera.  ``cam_y`` is None
         for a 1-D grid (``Sy = 1``).
-    time : FilterPair
+    time : FilterPair or None
+        None for a light field of one frame (no time axis).
     rows : slice
         Image rows to process (a band); only views of the volume are taken, so memory
         grows with the band, not the volume.
@@ -85,7 +86,8 @@ def camera_time_signals(volume: np.ndarray, frames: np.ndarray, cam_x: FilterPai
     ys = [(ic, 1.0)] if cam_y is None else _taps(cam_y.prefilter, ic)
     yd = [] if cam_y is None else _taps(cam_y.derivative, ic)
     xs, xd = _taps(cam_x.prefilter, jc), _taps(cam_x.derivative, jc)
-    needed = sorted({int(k) + o for k in frames for o in range(-time.radius, time.radius + 1)})
+    tr_ = 0 if time is None else time.radius
+    needed = sorted({int(k) + o for k in frames for o in range(-tr_, tr_ + 1)})
     # Camera axes first, per frame: one weighted sum over the grid's (sy, sx) taps, so
     # every array below is (h, W) or (F, h, W) and only views of the volume are read.
     iy = sorted({i for i, _ in ys} | {i for i, _ in yd})
@@ -110,10 +112,13 @@ def camera_time_signals(volume: np.ndarray, frames: np.ndarray, cam_x: FilterPai
     def along_t(src: dict[int, np.ndarray], kernel: np.ndarray) -> np.ndarray:
         return np.stack([sum(w * src[kk] for kk, w in _taps(kernel, int(k))) for k in frames])
 
-    out = {"p": along_t(cams["pp"], time.prefilter), "t": along_t(cams["pp"], time.derivative),
-           "sx": along_t(cams["dp"], time.prefilter)}
+    one = np.ones(1)                          # no time axis: the frames as they are
+    out = {"p": along_t(cams["pp"], one if time is None else time.prefilter),
+           "sx": along_t(cams["dp"], one if time is None else time.prefilter)}
+    if time is not None:
+        out["t"] = along_t(cams["pp"], time.derivative)
     if cam_y is not None:
-        out["sy"] = along_t(cams["pd"], time.prefilter)
+        out["sy"] = along_t(cams["pd"], one if time is None else time.prefilter)
     return out
 
 
@@ -143,7 +148,9 @@ def spatial_signals(ct: dict[str, np.ndarray], spatial: FilterPair) -> dict[str,
 
     base = ct["p"]
     jobs = {"x": (base, d, p), "y": (base, p, d), "I": (base, p, p),
-            "sx": (ct["sx"], p, p), "t": (ct["t"], p, p)}
+            "sx": (ct["sx"], p, p)}
+    if "t" in ct:
+        jobs["t"] = (ct["t"], p, p)
     if "sy" in ct:
         jobs["sy"] = (ct["sy"], p, p)
     # numpy releases the GIL in its loops: the six signals are filtered on all cores

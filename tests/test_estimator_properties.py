@@ -12,7 +12,7 @@ SMALL = dict(height=80, width=80, frames=7)
 # The magnitude each quantity has in these experiments (Z0 = 100, slopes O(1), U_Z = 0.1,
 # swept brightness values).  Differences are judged against these, not against a map's own
 # maximum, because several truths are 0 and their estimates are pure roundoff.
-SCALE = {"Z": 100.0, "Zx": 1.0, "Zy": 1.0, "Ux": 0.1, "Uy": 0.1, "Uz": 0.1, "a1": 1.0,
+SCALE = {"Z": 100.0, "disparity": 1.0, "Zx": 1.0, "Zy": 1.0, "Ux": 0.1, "Uy": 0.1, "Uz": 0.1, "a1": 1.0,
          "a2": 0.1, "a1x": 0.01, "a1y": 0.01, "a2x": 1e-3, "a2y": 1e-3,
          # an eigenvalue is exact only to eps * ||J||, and ||J|| ~ sigma^2 max(I)^2 ~ 1e3
          "model_error": 1e3}

@@ -77,7 +77,7 @@ def test_cli_generate_estimate_evaluate(tmp_path, capsys):
     assert main(["estimate", str(vol), "--model", "full", "-o", str(est)]) == 0
     maps, interior, meta = load_estimate(est)
     assert meta["model"] == "full" and meta["settings"]["filters_xy"] == "matched5"
-    expected = {"Z", "Zx", "Zy", "Ux", "Uy", "Uz", "a1", "a2", "a1x", "a1y", "a2x", "a2y",
+    expected = {"Z", "Zx", "Zy", "disparity", "Ux", "Uy", "Uz", "a1", "a2", "a1x", "a1y", "a2x", "a2y",
                 "model_error"}
     assert set(maps) == expected
     assert all(m.shape == (80, 80) and m.dtype == np.float64 for m in maps.values())
@@ -94,7 +94,7 @@ def test_cli_bcc_writes_only_its_maps(tmp_path):
     assert main(["estimate", str(vol), "--model", "bcc", "--sigma", "8", "--window", "33",
                  "-o", str(est)]) == 0
     maps, _, meta = load_estimate(est)
-    assert set(maps) == {"Z", "Zx", "Zy", "Ux", "Uy", "Uz", "model_error"}
+    assert set(maps) == {"Z", "Zx", "Zy", "disparity", "Ux", "Uy", "Uz", "model_error"}
     assert meta["settings"]["sigma"] == 8.0
 
 

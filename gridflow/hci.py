@@ -1,0 +1,277 @@
+"""The HCI 4-D light field benchmark format (Honauer et al., ACCV 2016) (edge: file I/O).
+
+A scene folder holds ``input_Cam000.png … input_CamNNN.png`` (view ``i`` at grid row
+``i // n``, column ``i % n`` of an ``n x n`` grid; the centre view is the reference),
+optionally ``parameters.cfg`` (intrinsics, baseline, focus distance) and the ground truth
+of the centre view, ``gt_disp_lowres.pfm`` and ``gt_depth_lowres.pfm`` (PFM: float32,
+rows stored bottom-up).
+
+Geometry: a centre-view pixel ``(x, y)`` with disparity ``d`` appears in view ``(r, c)``
+at ``(x - d (c - cc), y - d (r - cc))`` (x right, y down, ``cc`` the centre index).  The
+cameras converge at ``focus_distance``: ``1/Z = d / (f_px b) + 1/Z_focus`` with ``f_px =
+focal_length_mm / sensor_size_mm * resolution`` and ``b`` the baseline.
+
+In gridflow's frame a point moves by ``v ds`` pixels per camera step (``v = -f/Z`` for
+parallel cameras), so ``d = -v ds``: :func:`load_hci` returns the views with
+``camera_spacing = (1, 1)`` (one camera step) and the estimator's ``disparity`` output is
+``d`` directly.  RGB views are converted to luminance with the Rec. 709 weights, as the
+other loaders do; the benchmark's PNGs are sRGB-encoded and used as stored (the
+structure tensor needs intensities that brightness-constancy holds for across views,
+which the encoding does not change; the brightness-change models would need them
+linearised).
+"""
+
+from __future__ import annotations
+
+import configparser
+import re
+from pathlib import Path
+
+import numpy as np
+
+from .volume import GridVolume, physical_memory
+
+__all__ = ["HCIError", "is_hci_scene", "load_hci", "read_pfm", "write_pfm", "read_parameters",
+           "write_hci", "depth_from_disparity", "disparity_from_depth"]
+
+_VIEW = re.compile(r"^input_Cam(\d{3})\.png$")
+
+
+class HCIError(ValueError):
+    """An HCI scene folder that cannot be read; the message names file and problem."""
+
+
+def is_hci_scene(folder) -> bool:
+    """Whether ``folder`` looks like an HCI scene (it holds ``input_Cam000.png``)."""
+    p = Path(folder)
+    return p.is_dir() and (p / "input_Cam000.png").is_file()
+
+
+def read_pfm(path) -> np.ndarray:
+    """A single-channel PFM image as float32, rows top-down.
+
+    Raises
+    ------
+    HCIError
+        Not a PFM file, a colour PFM, a size that does not match the data.
+    """
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise HCIError(f"{path}: unreadable file ({exc})") from None
+    parts = raw.split(b"\n", 3)
+    if len(parts) < 4 or parts[0].strip() not in (b"Pf", b"PF"):
+        raise HCIError(f"{path}: not a PFM file (expected the header 'Pf')")
+    if parts[0].strip() == b"PF":
+        raise HCIError(f"{path}: a colour PFM; expected a single-channel map")
+    try:
+        w, h = (int(v) for v in parts[1].split())
+        scale = float(parts[2])
+    except ValueError:
+        raise HCIError(f"{path}: bad PFM header {parts[1]!r} {parts[2]!r}") from None
+    if w <= 0 or h <= 0 or scale == 0 or not np.isfinite(scale):
+        raise HCIError(f"{path}: bad PFM size {w}x{h} or scale {scale}")
+    data = parts[3]
+    if len(data) != 4 * w * h:
+        raise HCIError(f"{path}: {len(data)} bytes of data for a {w}x{h} map "
+                       f"(expected {4 * w * h})")
+    arr = np.frombuffer(data, dtype="<f4" if scale < 0 else ">f4").reshape(h, w)
+    return np.ascontiguousarray(arr[::-1]).astype(np.float32)
+
+
+def write_pfm(path, image: np.ndarray) -> None:
+    """Write a 2-D map as a little-endian single-channel PFM (rows bottom-up)."""
+    from .io import atomic_write
+
+    a = np.asarray(image, dtype="<f4")
+    if a.ndim != 2:
+        raise ValueError(f"a PFM map must be 2-D, got shape {a.shape}")
+    with atomic_write(path) as fh:
+        fh.write(f"Pf\n{a.shape[1]} {a.shape[0]}\n-1\n".encode())
+        fh.write(np.ascontiguousarray(a[::-1]).tobytes())
+
+
+def read_parameters(path) -> dict:
+    """``parameters.cfg`` as ``{section: {key: value}}`` (numbers converted)."""
+    path = Path(path)
+    cp = configparser.ConfigParser()
+    try:
+        text = path.read_text()
+        cp.read_string(text)
+    except (OSError, UnicodeDecodeError, configparser.Error) as exc:
+        raise HCIError(f"{path}: unreadable parameters file ({exc})") from None
+    out = {}
+    for sec in cp.sections():
+        out[sec] = {}
+        for k, v in cp[sec].items():
+            try:
+                out[sec][k] = float(v) if any(ch in v for ch in ".eE") else int(v)
+            except ValueError:
+                out[sec][k] = v
+    return out
+
+
+def _geometry(params: dict, path: Path, width: int) -> dict:
+    """Focal length (px), baseline (m), focus distance (m) from a parameters dict."""
+    try:
+        intr, extr = params["intrinsics"], params["extrinsics"]
+        f_mm = float(intr["focal_length_mm"])
+        sensor = float(intr["sensor_size_mm"])
+        res = int(intr["image_resolution_x_px"])
+        b = float(extr["baseline_mm"]) / 1000.0
+        zf = float(extr["focus_distance_m"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise HCIError(f"{path}: missing or bad key {exc} (needs intrinsics focal_length_mm, "
+                       "sensor_size_mm, image_resolution_x_px; extrinsics baseline_mm, "
+                       "focus_distance_m)") from None
+    if not (f_mm > 0 and sensor > 0 and b > 0 and zf > 0 and res > 0):
+        raise HCIError(f"{path}: focal length, sensor size, baseline, focus distance and "
+                       "resolution must be positive")
+    if res != width:
+        raise HCIError(f"{path}: image_resolution_x_px = {res}, but the views are {width} "
+                       "pixels wide")
+    return {"focal_length_px": f_mm / sensor * res, "baseline_m": b, "focus_distance_m": zf}
+
+
+def depth_from_disparity(d: np.ndarray, geometry: dict) -> np.ndarray:
+    """Depth (m) from HCI disparity (px per camera step): ``1/Z = d/(f b) + 1/Z_focus``."""
+    fb = geometry["focal_length_px"] * geometry["baseline_m"]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return 1.0 / (np.asarray(d, float) / fb + 1.0 / geometry["focus_distance_m"])
+
+
+def disparity_from_depth(z: np.ndarray, geometry: dict) -> np.ndarray:
+    """HCI disparity (px per camera step) of depth ``z`` (m)."""
+    fb = geometry["focal_length_px"] * geometry["baseline_m"]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return fb * (1.0 / np.asarray(z, float) - 1.0 / geometry["focus_distance_m"])
+
+
+def load_hci(folder, views: int | None = None) -> GridVolume:
+    """Read an HCI scene as a one-frame camera-grid volume.
+
+    Parameters
+    ----------
+    folder : path
+    views : int, optional
+        Odd size of the central sub-grid to use (e.g. 5 for the central 5 x 5 of 9 x 9);
+        default all views.
+
+    Returns
+    -------
+    GridVolume
+        ``volume`` of shape (1, n, n, H, W), float64 luminance in [0, 1];
+        ``camera_spacing = (1, 1)`` (one camera step: the estimator's ``disparity`` is the
+        HCI disparity); ``truth`` holds ``disparity`` (and ``depth`` in metres) where the
+        folder has them; ``meta["hci"]`` the geometry from ``parameters.cfg`` (if any)
+        and the grid used.
+    """
+    from .loader import LoaderError, _read_image
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise HCIError(f"{folder}: not a folder")
+    found = {}
+    for p in folder.iterdir():
+        m = _VIEW.match(p.name)
+        if m:
+            found[int(m.group(1))] = p
+    count = len(found)
+    n = int(round(np.sqrt(count)))
+    if count == 0 or n * n != count or n % 2 == 0 or sorted(found) != list(range(count)):
+        raise HCIError(f"{folder}: expected input_Cam000.png ... for an odd n x n grid of "
+                       f"views, found {count} views ({sorted(found)[:3]} ...)")
+    use = n if views is None else int(views)
+    if use % 2 == 0 or not 3 <= use <= n:
+        raise HCIError(f"views must be odd, at least 3 and at most the grid's {n}, got {views}")
+    c0 = (n - use) // 2
+    images = []
+    try:
+        for r in range(c0, c0 + use):
+            row = []
+            for c in range(c0, c0 + use):
+                img, kind = _read_image(found[r * n + c])
+                row.append(img)
+            images.append(row)
+    except LoaderError as exc:
+        raise HCIError(str(exc)) from None
+    shapes = {im.shape for row in images for im in row}
+    if len(shapes) != 1:
+        raise HCIError(f"{folder}: views of different sizes {sorted(shapes)}")
+    H, W = shapes.pop()
+    mem = physical_memory()
+    if mem is not None and use * use * H * W * 8 > mem // 2:
+        raise HCIError(f"{folder}: {use}x{use} views of {W}x{H} need more than half the "
+                       "memory of this machine")
+    volume = np.stack([np.stack(row) for row in images])[None]
+    meta = {"source": "hci", "folder": str(folder), "grid": [n, n], "views_used": use}
+    geometry = None
+    cfg = folder / "parameters.cfg"
+    if cfg.is_file():
+        params = read_parameters(cfg)
+        geometry = _geometry(params, cfg, W)
+        meta["hci"] = {**geometry, "scene": params.get("meta", {}).get("scene")}
+    truth = {}
+    for name, key in (("gt_disp_lowres.pfm", "disparity"), ("gt_depth_lowres.pfm", "depth")):
+        if (folder / name).is_file():
+            t = read_pfm(folder / name).astype(np.float64)
+            if t.shape != (H, W):
+                raise HCIError(f"{folder / name}: {t.shape} does not match the views' {(H, W)}")
+            truth[key] = t
+    f = geometry["focal_length_px"] if geometry else float(W)
+    return GridVolume(volume=volume, focal_length=f, camera_spacing=(1.0, 1.0),
+                      principal_point=((W - 1) / 2.0, (H - 1) / 2.0), truth=truth, meta=meta)
+
+
+def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
+              parameters: dict | None = None) -> list[Path]:
+    """Write a light field in the HCI layout (for other tools).
+
+    Parameters
+    ----------
+    folder : path
+        Created if needed; existing ``input_Cam*.png`` files are not overwritten.
+    views : ndarray, shape (n, n, H, W)
+        Intensities in [0, 1] (clipped), written as 8-bit grey PNGs; n odd.
+    disparity : ndarray, shape (H, W), optional
+        Centre-view disparity (px per camera step, HCI sign), as ``gt_disp_lowres.pfm``.
+    parameters : dict, optional
+        ``{section: {key: value}}`` for ``parameters.cfg``.
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
+    import imageio.v3 as iio
+
+    from .io import atomic_write
+
+    folder = Path(folder)
+    v = np.asarray(views, dtype=float)
+    if v.ndim != 4 or v.shape[0] != v.shape[1] or v.shape[0] % 2 == 0:
+        raise ValueError(f"views must have shape (n, n, H, W) with n odd, got {v.shape}")
+    folder.mkdir(parents=True, exist_ok=True)
+    n = v.shape[0]
+    targets = [folder / f"input_Cam{i:03d}.png" for i in range(n * n)]
+    clash = [p for p in targets if p.exists()]
+    if clash:
+        raise FileExistsError(f"{clash[0]}: exists; write the scene into an empty folder")
+    written = []
+    for i, p in enumerate(targets):
+        img = np.round(np.clip(v[i // n, i % n], 0.0, 1.0) * 255).astype(np.uint8)
+        with atomic_write(p) as fh:
+            fh.write(iio.imwrite("<bytes>", img, extension=".png"))
+        written.append(p)
+    if disparity is not None:
+        write_pfm(folder / "gt_disp_lowres.pfm", disparity)
+        written.append(folder / "gt_disp_lowres.pfm")
+    if parameters:
+        cp = configparser.ConfigParser()
+        for sec, kv in parameters.items():
+            cp[sec] = {k: str(val) for k, val in kv.items()}
+        with atomic_write(folder / "parameters.cfg", "w") as fh:
+            cp.write(fh)
+        written.append(folder / "parameters.cfg")
+    return written

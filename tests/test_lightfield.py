@@ -1,0 +1,159 @@
+"""Static light fields: the HCI format, disparity output, refocusing, the peers' interface.
+
+The data are made here (a textured plane seen by a 2-D grid of parallel cameras, exact
+ray-plane intersection); the real HCI scene is never needed by the tests.
+"""
+
+import numpy as np
+import pytest
+
+from gridflow.hci import (HCIError, depth_from_disparity, disparity_from_depth, is_hci_scene,
+                          load_hci, read_pfm, write_hci, write_pfm)
+
+
+def plane_views(n=5, size=96, d0=0.4, slope=0.0, seed=0, freq=0.35):
+    """A static light field of a textured fronto-parallel (or x-slanted) plane with
+    disparity ``d0 + slope * x`` (HCI sign, px per camera step), by resampling a
+    smooth random texture exactly: view (r, c) at (x, y) shows the texture at
+    (x + d (c - cc), y + d (r - cc))."""
+    rng = np.random.default_rng(seed)
+    k = rng.normal(size=(6, 2)) * freq
+    ph = rng.uniform(0, 2 * np.pi, 6)
+
+    def tex(X, Y):
+        return 0.5 + 0.08 * sum(np.sin(k[i, 0] * X + k[i, 1] * Y + ph[i]) for i in range(6))
+
+    cc = n // 2
+    y, x = np.mgrid[0:size, 0:size].astype(float)
+    xc = x - (size - 1) / 2
+    # centre pixel x sees surface point u; in view c it appears at u - d(u) (c - cc)
+    # with d = d0 + slope * u: solve x = u - (d0 + slope u) dc for u
+    views = np.empty((n, n, size, size))
+    for r in range(n):
+        for c in range(n):
+            dc, dr = c - cc, r - cc
+            u = (xc + d0 * dc) / (1 - slope * dc)
+            d = d0 + slope * u
+            views[r, c] = tex(u, y + d * dr)
+    truth = d0 + slope * xc
+    return views, truth
+
+
+def test_pfm_round_trip(tmp_path):
+    a = np.random.default_rng(1).normal(size=(7, 5)).astype(np.float32)
+    write_pfm(tmp_path / "a.pfm", a)
+    np.testing.assert_array_equal(read_pfm(tmp_path / "a.pfm"), a)
+    raw = (tmp_path / "a.pfm").read_bytes()
+    assert raw.startswith(b"Pf\n5 7\n-1\n")
+    # rows are stored bottom-up
+    assert np.frombuffer(raw[len(b"Pf\n5 7\n-1\n"):][:20], "<f4").tolist() == a[-1].tolist()
+
+
+@pytest.mark.parametrize("content, match", [
+    (b"P6\n1 1\n255\n...", "not a PFM"),
+    (b"PF\n1 1\n-1\n" + bytes(12), "colour"),
+    (b"Pf\n2 2\n-1\n" + bytes(4), "bytes of data"),
+    (b"Pf\nx y\n-1\n", "bad PFM header"),
+])
+def test_bad_pfm_is_named(tmp_path, content, match):
+    p = tmp_path / "gt.pfm"
+    p.write_bytes(content)
+    with pytest.raises(HCIError, match=match) as exc:
+        read_pfm(p)
+    assert "gt.pfm" in str(exc.value)
+
+
+def test_write_then_load_hci(tmp_path):
+    views, truth = plane_views(n=5, size=48)
+    params = {"intrinsics": {"focal_length_mm": 100.0, "sensor_size_mm": 35.0,
+                             "image_resolution_x_px": 48, "image_resolution_y_px": 48},
+              "extrinsics": {"baseline_mm": 30.0, "focus_distance_m": 8.0, "num_cams_x": 5,
+                             "num_cams_y": 5},
+              "meta": {"scene": "plane"}}
+    write_hci(tmp_path / "s", views, disparity=truth, parameters=params)
+    assert is_hci_scene(tmp_path / "s")
+    lf = load_hci(tmp_path / "s")
+    assert lf.volume.shape == (1, 5, 5, 48, 48)
+    np.testing.assert_allclose(lf.volume[0], np.round(views * 255) / 255, atol=1e-12)
+    np.testing.assert_allclose(lf.truth["disparity"], truth, rtol=1e-6)
+    g = lf.meta["hci"]
+    assert g["focal_length_px"] == pytest.approx(100 / 35 * 48)
+    # 1/Z = d/(f b) + 1/Z_focus, and back
+    z = depth_from_disparity(np.array([0.0, 1.0]), g)
+    assert z[0] == pytest.approx(8.0)
+    np.testing.assert_allclose(disparity_from_depth(z, g), [0.0, 1.0], atol=1e-12)
+    sub = load_hci(tmp_path / "s", views=3)
+    np.testing.assert_array_equal(sub.volume[0], lf.volume[0, 1:4, 1:4])
+    with pytest.raises(FileExistsError):
+        write_hci(tmp_path / "s", views)                    # no input is overwritten
+
+
+def test_bad_scene_folders_are_named(tmp_path):
+    (tmp_path / "a").mkdir()
+    with pytest.raises(HCIError, match="odd n x n"):
+        load_hci(tmp_path / "a")
+    views, _ = plane_views(n=3, size=24)
+    write_hci(tmp_path / "b", views)
+    (tmp_path / "b" / "input_Cam004.png").unlink()
+    with pytest.raises(HCIError, match="odd n x n"):
+        load_hci(tmp_path / "b")
+    write_hci(tmp_path / "c", views)
+    with pytest.raises(HCIError, match="views must be odd"):
+        load_hci(tmp_path / "c", views=2)
+    (tmp_path / "c" / "parameters.cfg").write_text("[intrinsics]\nfocal_length_mm = 1\n")
+    with pytest.raises(HCIError, match="parameters.cfg: missing or bad key"):
+        load_hci(tmp_path / "c")
+
+
+def test_static_light_field_disparity_and_slope():
+    """One frame: depth, slopes and disparity from the camera axes alone.  Tolerance: the
+    texture is smooth (wavelengths >= 18 px) and the disparity 0.4 px per view, so the
+    5-tap derivative filters are accurate to ~1e-4 of the shift; 1e-3 px is allowed."""
+    from gridflow.estimator import estimate
+
+    views, truth = plane_views(n=5, size=96, d0=0.4)
+    e = estimate(views[None], 96.0, (1.0, 1.0), model="bcc", sigma=4.0, window=17)
+    m = e.interior
+    assert set(e.maps) == {"Z", "Zx", "Zy", "disparity", "model_error"}
+    assert np.nanmax(np.abs(e["disparity"][m] - truth[m])) < 1e-3
+    # Z = -f / v with v = -d / ds: for parallel cameras Z = f ds / d
+    np.testing.assert_allclose(e["Z"][m], 96.0 / e["disparity"][m], rtol=1e-12)
+    with pytest.raises(ValueError, match="time axis"):
+        estimate(views[None], 96.0, (1.0, 1.0), model="full", sigma=4.0, window=17)
+
+
+def test_refocusing_reaches_large_disparities():
+    """A plane at 2.6 px per view with a fine texture (wavelengths down to ~5 px): the
+    views are then shifted by more than the camera-derivative filters can follow, unless
+    the shear to 3 leaves the residual -0.4."""
+    from gridflow.estimator import estimate
+    from gridflow.estimator.lightfield import estimate_refocused
+
+    views, truth = plane_views(n=5, size=96, d0=2.6, freq=0.9)
+    plain = estimate(views[None], 96.0, (1.0, 1.0), model="bcc", sigma=4.0, window=17)
+    res = estimate_refocused(views, shifts=range(-3, 4), sigma=4.0, window=17)
+    m = plain.interior
+    # measured: plain 7.2e-3 (median), refocused 1.9e-4 (max)
+    assert np.nanmedian(np.abs(plain["disparity"][m] - truth[m])) > 5e-3
+    ok = res["valid"]
+    # the shear by 3 moves 6 px of repeated edge into the outer views: those pixels go
+    assert ok.sum() == (m.sum() ** 0.5 - 12) ** 2
+    assert np.max(np.abs(res["disparity"][ok] - truth[ok])) < 1e-3
+    assert (res["shear"][ok] == 3).all() and np.isfinite(res["confidence"][ok]).all()
+    assert np.isnan(res["disparity"][~ok]).all()
+
+
+def test_hci_metrics_and_epi_peer():
+    from gridflow.bench.peers import epi_structure_tensor, hci_metrics
+
+    views, truth = plane_views(n=9, size=96, d0=0.4)
+    d, coh = epi_structure_tensor(views)
+    s = hci_metrics(d, truth)
+    assert s["n_pixels"] == 66 * 66
+    # the EPI structure tensor recovers a plane's disparity (measured badpix 0.0)
+    assert s["badpix_007"] < 1.0
+    wrong = hci_metrics(truth + 0.05, truth)
+    assert wrong["badpix_007"] == 0.0 and wrong["badpix_003"] == 100.0
+    assert wrong["mse_x100"] == pytest.approx(100 * 0.05 ** 2)
+    nan = hci_metrics(np.full_like(truth, np.nan), truth)
+    assert nan["badpix_007"] == 100.0 and nan["n_nonfinite"] == 66 * 66

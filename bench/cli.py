@@ -118,13 +118,34 @@ def cmd_generate(a) -> int:
     from gridflow.generators import make_sinusoid
     from gridflow.io import check_output, save_volume
 
-    check_output(a.output, suffixes=".npz", what="-o")
+    if not (a.output or a.hci):
+        raise ValueError("give -o OUTPUT.npz, --hci FOLDER, or both")
+    if a.output:
+        check_output(a.output, suffixes=".npz", what="-o")
     over = {fl: getattr(a, fl) for fl in vars(a) if fl in _sinusoid_fields()
             and getattr(a, fl) is not None}
     over = {k: tuple(v) if isinstance(v, list) else v for k, v in over.items()}
     data = make_sinusoid(dtype=np.float32 if a.float32 else np.float64, **over)
-    save_volume(a.output, data)
-    print(f"wrote {a.output}: volume {data.volume.shape} {data.volume.dtype}")
+    if a.hci:
+        from gridflow.hci import write_hci
+
+        p = data.params
+        if p.grid[0] != p.grid[1] or p.spacing[0] != p.spacing[1]:
+            raise ValueError(f"--hci needs a square grid with equal spacing, got grid "
+                             f"{list(p.grid)} spacing {list(p.spacing)}")
+        views = data.volume[p.ref_frame].astype(np.float64)
+        lo, hi = float(views.min()), float(views.max())
+        # 8-bit views of the reference frame; an affine map onto [0, 1] does not change
+        # the disparity (parallel cameras: d = f ds / Z, px per camera step)
+        views = (views - lo) / (hi - lo if hi > lo else 1.0)
+        disparity = data.focal_length * p.spacing[0] / data.truth["Z"]
+        files = write_hci(a.hci, views, disparity=disparity)
+        print(f"wrote {a.hci}: {len(files)} files (HCI layout, {p.grid[0]}x{p.grid[1]} views "
+              f"of frame {p.ref_frame}, disparity {disparity.min():.3g} .. "
+              f"{disparity.max():.3g} px per view)")
+    if a.output:
+        save_volume(a.output, data)
+        print(f"wrote {a.output}: volume {data.volume.shape} {data.volume.dtype}")
     return 0
 
 
@@ -410,7 +431,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("generate", help="render a sinusoid volume (.npz)")
     _add_sinusoid_args(p)
     p.add_argument("--float32", action="store_true", help="store the volume as float32")
-    p.add_argument("-o", "--output", required=True, help="output .npz")
+    p.add_argument("-o", "--output", help="output .npz")
+    p.add_argument("--hci", metavar="FOLDER",
+                   help="also (or only) write the reference frame's views as an HCI light "
+                        "field scene (8-bit PNGs and gt_disp_lowres.pfm) for other tools")
     p.set_defaults(func=cmd_generate)
 
     p = sub.add_parser("estimate", help="estimate depth, slopes, motion, brightness")

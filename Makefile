@@ -47,7 +47,8 @@ SETUP_CSV := results/sweep_paper_setup.csv
 FIGDIR    := results/figures
 FIGS      := $(FIGDIR)/fig1.png $(FIGDIR)/fig2.png $(FIGDIR)/fig3.png $(FIGDIR)/fig4.png \
              $(FIGDIR)/fig3_paper_setup.png $(FIGDIR)/fig4_paper_setup.png
-OUTPUTS   := $(FIGS) results/claims.csv results/claims_paper_setup.csv results/cube.csv
+OUTPUTS   := $(FIGS) results/claims.csv results/claims_paper_setup.csv results/cube.csv \
+             results/peers_depth.csv
 CUBE_SRC  := $(wildcard estimator/*.py scenes/*.py) gridflow/loader.py bench/cube.py \
              bench/figures.py bench/metrics.py bench/cli.py
 
@@ -78,6 +79,11 @@ $(FIGDIR)/fig2.png: bench/figures.py generators/sinusoid.py bench/cli.py | $(STA
 # The cube: rendered with POV-Ray into work/cube/ (cached, not committed), then estimated.
 $(FIGDIR)/fig1.png results/cube.csv &: $(CUBE_SRC) | $(STAMP) povray
 	$(BIN)/gridflow cube --csv results/cube.csv --fig-dir $(FIGDIR) --write-doc docs/reproduction.md
+
+# gridflow and peer methods side by side: depth on the cube rendered as a light field with
+# large disparities, motion on sinusoids and the cube.
+results/peers_depth.csv results/peers_motion.csv $(FIGDIR)/peers_depth.png &: $(CUBE_SRC) bench/peers.py generators/sinusoid.py | $(STAMP) povray
+	$(BIN)/gridflow peers --csv-depth results/peers_depth.csv --csv-motion results/peers_motion.csv --fig-dir $(FIGDIR)
 
 # POV-Ray (Debian's povray) renders the cube; installed where missing, or one line says how.
 povray:

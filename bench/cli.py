@@ -415,6 +415,81 @@ def cmd_cube(a) -> int:
     return 0
 
 
+def cmd_peers(a) -> int:
+    import pandas as pd
+
+    from gridflow.io import atomic_write, check_output
+
+    from . import figures as F
+    from .cube import cube_lightfield
+    from .peers import DEPTH_METHODS, compare_motion, run_depth
+
+    for path in (a.csv_depth, a.csv_motion):
+        check_output(path, suffixes=".csv", what="output")
+    check_output(a.fig_dir, suffixes=None, what="--fig-dir")
+    # depth: the cube as a light field with disparities up to 3 px per view
+    views, truth, scene = cube_lightfield(a.cache, progress=not a.no_progress)
+    label = (f"cube (POV-Ray), {scene.grid[0]}x{scene.grid[1]} views, disparity "
+             f"{np.nanmin(truth):.2f} .. {np.nanmax(truth):.2f} px/view")
+    depth = [run_depth(m, views, truth) for m in DEPTH_METHODS]
+    table = pd.DataFrame([{"scene": label, **{k: v for k, v in r.items()
+                                              if k not in ("disparity", "confidence")}}
+                          for r in depth])
+    # run times are printed, not stored: the CSV stays the same from run to run
+    with atomic_write(a.csv_depth, "w") as fh:
+        table.drop(columns="seconds").to_csv(fh, index=False, float_format="%.6g")
+    print(label)
+    print(table.drop(columns="scene").to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    for p in F.save(F.fig_peers_depth(truth, depth, label), a.fig_dir, "peers_depth"):
+        print(f"wrote {p}")
+    if a.write_hci:
+        from gridflow.hci import write_hci
+
+        files = write_hci(a.write_hci, views, disparity=truth)
+        print(f"wrote {a.write_hci}: the cube light field in HCI layout ({len(files)} files)")
+    # motion: the centre camera's frames, sinusoids under brightness change and the cube
+    from gridflow.generators import make_sinusoid
+    from gridflow.loader import load_folder
+    from gridflow.scenes import CubeScene
+    from gridflow.scenes.render import render_cube
+
+    rows = []
+    base = dict(U_X=0.05, U_Y=0.03)
+    for case, kw in (("sinusoid", {}), ("sinusoid a1=0.1", dict(a1=0.1)),
+                     ("sinusoid a1x=0.002", dict(a1x=0.002)),
+                     ("sinusoid a2x=-0.002", dict(a2x=-0.002)),
+                     ("sinusoid noise 0.025", dict(noise=0.025))):
+        for r in compare_motion(make_sinusoid(**base, **kw)):
+            rows.append({"data": case, **r})
+    cube = load_folder(render_cube(CubeScene(), a.cache, progress=not a.no_progress))
+    for r in compare_motion(cube, sigma=8.0, window=33):
+        rows.append({"data": "cube (spotlight)", **r})
+    motion = pd.DataFrame(rows)
+    with atomic_write(a.csv_motion, "w") as fh:
+        motion.drop(columns="seconds").to_csv(fh, index=False, float_format="%.6g")
+    wide = motion.pivot_table(index=["data", "quantity"], columns="method", values="q",
+                              sort=False)
+    print("motion: Eq. 22 of the image flow (px/frame; relative where the truth keeps one "
+          "sign, else absolute)")
+    print(wide.to_string(float_format=lambda v: f"{v:.3g}"))
+    secs = motion.groupby(["data", "method"], sort=False).seconds.first().unstack()
+    print("seconds per volume (gridflow: the three models together)")
+    print(secs.to_string(float_format=lambda v: f"{v:.2f}"))
+    print(f"wrote {a.csv_depth}, {a.csv_motion}")
+    if a.hci:
+        from gridflow.hci import load_hci
+
+        lf = load_hci(a.hci)
+        if "disparity" not in lf.truth:
+            raise ValueError(f"{a.hci}: no gt_disp_lowres.pfm to score against")
+        out = [run_depth(m, lf.volume[0], lf.truth["disparity"]) for m in DEPTH_METHODS]
+        t = pd.DataFrame([{k: v for k, v in r.items() if k not in ("disparity", "confidence")}
+                          for r in out])
+        print(f"{a.hci} ({lf.volume.shape[1]}x{lf.volume.shape[2]} views):")
+        print(t.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from gridflow import __version__
 
@@ -497,6 +572,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--write-doc", help="markdown file whose cube section to rewrite")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=cmd_cube)
+
+    p = sub.add_parser("peers", help="gridflow and peer methods on the same data: depth on "
+                                     "a light field, motion on sinusoids and the cube")
+    p.add_argument("--cache", default="work/cube", help="render cache (default work/cube)")
+    p.add_argument("--csv-depth", default="results/peers_depth.csv")
+    p.add_argument("--csv-motion", default="results/peers_motion.csv")
+    p.add_argument("--fig-dir", default="results/figures", help="where peers_depth.{png,pdf} go")
+    p.add_argument("--write-hci", metavar="FOLDER",
+                   help="also write the cube light field as an HCI scene")
+    p.add_argument("--hci", metavar="SCENE",
+                   help="also score the depth methods on an HCI scene (printed only)")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=cmd_peers)
 
     p = sub.add_parser("claims", help="check the paper's observations 1-10 on a sweep CSV")
     p.add_argument("csv", help="sweep CSV (e.g. results/sweep_paper.csv)")

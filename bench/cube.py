@@ -259,3 +259,29 @@ def fig1(data, results, step: int = 12, scale: float = 135.0, margin: float | No
         fig.suptitle("Fig. 1: a cube moving towards the cameras under a spotlight moving "
                      "right to left")
     return fig
+
+
+def cube_lightfield(cache, *, size: int = 256, grid: int = 5, spacing: float = 10.0,
+                    focus: float = 420.0, progress: bool = True):
+    """The cube as a static light field with large disparities (HCI-style geometry).
+
+    One frame, no spotlight, ``grid x grid`` cameras ``spacing`` mm apart converging at
+    ``focus`` mm: with the defaults the cube's disparities run from -0.6 to +3.0 px per
+    view (the front corner at +3).
+
+    Returns
+    -------
+    views : ndarray, shape (grid, grid, size, size)
+    disparity : ndarray, shape (size, size)
+        True disparity (px per camera step, HCI sign), NaN off the cube.
+    scene : CubeScene
+    """
+    from gridflow.loader import load_folder
+    from gridflow.scenes import CubeScene
+    from gridflow.scenes.cube import cube_truth
+    from gridflow.scenes.render import render_cube
+
+    scene = CubeScene(width=size, height=size, grid=(grid, grid), spacing=(spacing, spacing),
+                      frames=1, static=True, spotlight=False, focus_distance=focus)
+    data = load_folder(render_cube(scene, cache, progress=progress))
+    return data.volume[0], scene.disparity(cube_truth(scene)["Z"]), scene

@@ -164,3 +164,31 @@ def fig2(frames: list[np.ndarray], titles: list[str], caption: str):
         prof.set_title("the brightness change")
         fig.suptitle(caption + "; each image on its own grey scale")
     return fig
+
+
+def fig_peers_depth(truth: np.ndarray, results: list[dict], title: str):
+    """Error maps side by side: the true disparity, then |estimate - truth| per method
+    (one colour scale, 0-0.5 px; NaN estimates white, pixels without truth grey)."""
+    import matplotlib.pyplot as plt
+
+    n = len(results) + 1
+    fig, axes = plt.subplots(1, n, figsize=(3.2 * n, 3.6), constrained_layout=True)
+    im = axes[0].imshow(truth, cmap="viridis")
+    axes[0].set_title("true disparity (px/view)", fontsize=9)
+    fig.colorbar(im, ax=axes[0], shrink=0.8)
+    cmap = plt.get_cmap("magma").copy()
+    cmap.set_bad("white")
+    for ax, r in zip(axes[1:], results):
+        err = np.abs(r["disparity"] - truth)
+        shown = np.where(np.isfinite(truth), err, np.nan)
+        ax.imshow(np.where(np.isfinite(truth), 0.0, 1.0), cmap="Greys", vmin=0, vmax=4)
+        im2 = ax.imshow(np.ma.masked_where(~np.isfinite(truth), shown), cmap=cmap, vmin=0,
+                        vmax=0.5)
+        ax.set_title(f"{r['method']}: BadPix(0.07) {r['badpix_007']:.1f} %\n"
+                     f"MSE x 100 {r['mse_x100']:.3g}", fontsize=9)
+    for ax in axes:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.colorbar(im2, ax=list(axes[1:]), shrink=0.8, label="|error| (px per view)")
+    fig.suptitle(title, fontsize=10)
+    return fig

@@ -34,18 +34,22 @@ def hci_metrics(d_est: np.ndarray, d_gt: np.ndarray, border: int = 15) -> dict:
     ----------
     d_est, d_gt : ndarray, shape (H, W)
         Estimated and true disparity (px per camera step).  Non-finite estimates count
-        as wrong (BadPix) and are left out of the MSE, whose pixel count is reported.
+        as wrong (BadPix) and are left out of the MSE; pixels where the truth is not
+        finite are not scored.
     border : int
         Pixels left out at each side (the benchmark's 15).
 
     Returns
     -------
     dict
-        ``mse_x100, badpix_007, badpix_003, badpix_001`` (percent), ``n_pixels``,
-        ``n_nonfinite``.
+        ``mse_x100, badpix_007, badpix_003, badpix_001`` (percent), ``n_pixels`` (scored),
+        ``n_nonfinite`` (of those, estimates that are not finite).
     """
     e = np.asarray(d_est, float)[border:-border or None, border:-border or None]
     g = np.asarray(d_gt, float)[border:-border or None, border:-border or None]
+    # pixels without truth (a rendered scene's background) are not scored
+    has = np.isfinite(g)
+    e, g = e[has], g[has]
     ok = np.isfinite(e)
     err = np.abs(e - g)
     out = {"mse_x100": float(100.0 * np.mean(err[ok] ** 2)) if ok.any() else float("nan"),
@@ -145,8 +149,10 @@ def _gridflow_refocus(views, grid: int = 5, sigma: float = 2.0, window: int = 9,
 
     n = views.shape[0]
     c0 = (n - grid) // 2
+    # dense, as the benchmark scores every pixel: pixels without an admissible estimate
+    # are filled from their neighbours (``filled``)
     res = estimate_refocused(views[c0:c0 + grid, c0:c0 + grid], shifts=shifts, sigma=sigma,
-                             window=window)
+                             window=window, fill=True)
     return res["disparity"], res["confidence"]
 
 
@@ -175,3 +181,96 @@ def run_depth(method: str, views: np.ndarray, d_gt: np.ndarray | None = None, **
     if d_gt is not None:
         out.update(hci_metrics(d, d_gt))
     return out
+
+
+# --- motion: the centre camera's frames, against gridflow's 3-D motion --------------------
+
+def image_flow(maps: dict, focal_length: float, principal_point) -> dict:
+    """Image motion (px per frame) at the reference view from depth and 3-D motion.
+
+    ``dx/dt = (f U_X - x U_Z) / Z`` (likewise y), x relative to the principal point: the
+    flow gridflow's parameters describe (``u_x + u_z x``), from estimated or true maps
+    ``Z, Ux, Uy, Uz`` of shape (H, W).
+    """
+    Z = np.asarray(maps["Z"], float)
+    H, W = Z.shape
+    x = np.arange(W, dtype=float)[None, :] - principal_point[0]
+    y = np.arange(H, dtype=float)[:, None] - principal_point[1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return {"flow_x": (focal_length * maps["Ux"] - x * maps["Uz"]) / Z,
+                "flow_y": (focal_length * maps["Uy"] - y * maps["Uz"]) / Z}
+
+
+def _centre_frames(volume: np.ndarray, k: int):
+    T, Sy, Sx = volume.shape[:3]
+    return (np.asarray(volume[k - 1, Sy // 2, Sx // 2], float),
+            np.asarray(volume[k + 1, Sy // 2, Sx // 2], float))
+
+
+def flow_ilk(volume: np.ndarray, k: int, radius: int = 15) -> dict:
+    """scikit-image's iterative Lucas-Kanade between frames k-1 and k+1 of the centre
+    camera, halved: the flow at frame k (central difference).  ``radius`` 15: a window
+    comparable to gridflow's (σ = 16); skimage's default 7 fails on the sinusoid's 8-px
+    texture (its coarse-to-fine pyramid aliases: median flow -15.5 px for a true 0.5)."""
+    from skimage.registration import optical_flow_ilk
+
+    a, b = _centre_frames(volume, k)
+    v, u = optical_flow_ilk(a, b, radius=radius)
+    return {"flow_x": u / 2.0, "flow_y": v / 2.0}
+
+
+def flow_farneback(volume: np.ndarray, k: int) -> dict:
+    """OpenCV's Farnebäck flow between frames k-1 and k+1 of the centre camera, halved.
+    Images are mapped affinely onto 0-255 (float32): the method's parameters assume that
+    range."""
+    import cv2
+
+    a, b = _centre_frames(volume, k)
+    lo, hi = min(a.min(), b.min()), max(a.max(), b.max())
+    s = 255.0 / (hi - lo) if hi > lo else 1.0
+    f = cv2.calcOpticalFlowFarneback(((a - lo) * s).astype(np.float32),
+                                     ((b - lo) * s).astype(np.float32), None,
+                                     0.5, 3, 15, 3, 5, 1.2, 0)
+    return {"flow_x": f[..., 0] / 2.0, "flow_y": f[..., 1] / 2.0}
+
+
+def compare_motion(data, models=("bcc", "hf", "full"), **settings) -> list[dict]:
+    """gridflow's models and the two optical-flow peers on one volume, scored alike.
+
+    Parameters
+    ----------
+    data : GridVolume
+        With truth ``Z, Ux, Uy, Uz`` at the reference camera and frame.
+    models : sequence of str
+    **settings
+        Estimator settings.
+
+    Returns
+    -------
+    list of dict
+        One row per method and flow component: ``method, quantity, q, measure, q_abs,
+        q_rel, n_pixels, seconds``; Eq. 22 over gridflow's interior (pixels with a full
+        window), where every method is free of border effects.
+    """
+    from gridflow.estimator import estimate_models
+
+    from .metrics import evaluate
+
+    k = settings.get("ref_frame") or (data.volume.shape[0] - 1) // 2
+    truth = image_flow(data.truth, data.focal_length, data.principal_point)
+    t0 = time.perf_counter()
+    ests = estimate_models(data.volume, data.focal_length, data.camera_spacing, models=models,
+                           principal_point=data.principal_point, **settings)
+    t_grid = time.perf_counter() - t0
+    mask = next(iter(ests.values())).interior
+    results = {f"gridflow_{m}": (image_flow(e.maps, data.focal_length, data.principal_point),
+                                 t_grid) for m, e in ests.items()}
+    for name, fn in (("ilk", flow_ilk), ("farneback", flow_farneback)):
+        t0 = time.perf_counter()
+        fl = fn(data.volume, k)
+        results[name] = (fl, time.perf_counter() - t0)
+    rows = []
+    for name, (fl, secs) in results.items():
+        for r in evaluate(fl, truth, mask):
+            rows.append({"method": name, **r, "seconds": secs})
+    return rows

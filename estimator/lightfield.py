@@ -68,7 +68,7 @@ def _lowpass(views: np.ndarray, sigma: float) -> np.ndarray:
 
 def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
                        sigma: float = 2.0, window: int = 9, filters: str = "matched5",
-                       coarse_sigma: float = 2.0) -> dict:
+                       coarse_sigma: float = 2.0, fill: bool = False) -> dict:
     """Disparity of the centre view over a range of integer shears.
 
     Parameters
@@ -83,14 +83,19 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         Estimator settings (:class:`estimator.EstimatorSettings`).
     coarse_sigma : float
         Low-pass of the coarse pass, px; its window is twice ``sigma``.
+    fill : bool
+        Give pixels without an admissible estimate the normalised convolution (Gaussian,
+        ``2 sigma``) of their neighbours' estimates; ``filled`` marks them.
 
     Returns
     -------
     dict of str to ndarray, each shape (H, W)
-        ``disparity``; ``coarse``: the coarse disparity; ``shear``: the shear used;
-        ``model_error``: its model error; ``confidence``: ``-log10`` of the model error
-        relative to its median over the image (larger is better; threshold it to mask);
-        ``valid``: a finite estimate within half a pixel of its shear.
+        ``disparity``; ``coarse``: the coarse disparity; ``shear``: the shear used (the
+        one nearest to the coarse disparity where its estimate is admissible, else the
+        admissible one with the smallest model error); ``model_error``: its model error;
+        ``confidence``: ``-log10`` of the model error relative to its median over the
+        image (larger is better; threshold it to mask); ``valid``: an admissible estimate
+        (finite, within half a pixel of its shear); ``filled``: see ``fill``.
     """
     v = np.asarray(views, dtype=np.float64)
     if v.ndim != 4 or v.shape[0] != v.shape[1] or v.shape[0] % 2 == 0:
@@ -113,12 +118,11 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     # the shear nearest to the coarse disparity (the nearest end of the range beyond it)
     pick = np.where(np.isfinite(coarse),
                     lo[np.abs(np.nan_to_num(coarse)[..., None] - lo).argmin(-1)], np.nan)
-    disp = np.full((H, W), np.nan)
-    err = np.full((H, W), np.nan)
-    for s in lo:
-        sel = pick == s
-        if not sel.any():
-            continue
+    # every shear over the whole image: the estimate, its model error, admissible where
+    # the residual stays within half a pixel of the shear
+    D = np.full((lo.size, H, W), np.nan)
+    E = np.full((lo.size, H, W), np.inf)
+    for n_s, s in enumerate(lo):
         e = estimate(shear(v, int(s))[None], float(W), (1.0, 1.0), model="bcc", sigma=sigma,
                      window=window, filters=filters)
         # a shear moves up to |s| cc pixels of repeated edge into the outer views: keep
@@ -126,14 +130,40 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         m = abs(int(s)) * (v.shape[0] // 2)
         clear = np.zeros((H, W), dtype=bool)
         clear[m:H - m, m:W - m] = True
-        clear &= np.roll(np.roll(e.interior, m, 0), m, 1) & np.roll(np.roll(e.interior, -m, 0), -m, 1)
-        sel &= clear
-        disp[sel] = s + e["disparity"][sel]
-        err[sel] = e["model_error"][sel]
-    valid = np.isfinite(disp) & np.isfinite(err) & (np.abs(disp - pick) <= 0.5 + 1e-9)
+        clear &= (np.roll(np.roll(e.interior, m, 0), m, 1)
+                  & np.roll(np.roll(e.interior, -m, 0), -m, 1))
+        d = s + e["disparity"]
+        ok = clear & np.isfinite(d) & np.isfinite(e["model_error"]) & (np.abs(d - s) <= 0.5)
+        D[n_s] = np.where(ok, d, np.nan)
+        E[n_s] = np.where(ok, e["model_error"], np.inf)
+    # the shear nearest to the coarse disparity where it is admissible; elsewhere the
+    # admissible neighbouring shear (one step either side) with the smaller model error;
+    # shears further away are not considered: with fine texture an aliased shear can fit
+    # as well as the right one
+    idx_near = np.where(np.isfinite(pick), np.abs(np.nan_to_num(pick)[None] - lo[:, None, None])
+                        .argmin(0), 0)
+    rows, cols = np.indices((H, W))
+    near_ok = np.isfinite(D[idx_near, rows, cols])
+    far = np.abs(np.arange(lo.size)[:, None, None] - idx_near[None]) > 1
+    idx_best = np.where(far, np.inf, E).argmin(0)
+    idx = np.where(near_ok, idx_near, idx_best)
+    disp = D[idx, rows, cols]
+    err = np.where(np.isfinite(disp), E[idx, rows, cols], np.nan)
+    valid = np.isfinite(disp)
     with np.errstate(divide="ignore", invalid="ignore"):
         med = np.nanmedian(err[valid]) if valid.any() else np.nan
         conf = np.where(valid, -np.log10(err / med), np.nan)
-    return {"disparity": np.where(valid, disp, np.nan), "coarse": coarse, "shear": pick,
-            "model_error": np.where(valid, err, np.nan), "confidence": conf,
-            "valid": valid}
+    filled = np.zeros((H, W), dtype=bool)
+    if fill and valid.any():
+        # normalised convolution of the valid estimates (Gaussian, 2 sigma) into the
+        # pixels without one, inside the region the estimator covers
+        from scipy.ndimage import gaussian_filter
+
+        w = valid.astype(float)
+        num = gaussian_filter(np.where(valid, disp, 0.0), 2 * sigma, mode="nearest")
+        den = gaussian_filter(w, 2 * sigma, mode="nearest")
+        inside = np.isfinite(D).any(0) | np.isfinite(coarse)
+        filled = ~valid & inside & (den > 1e-3)
+        disp = np.where(filled, num / np.where(den > 0, den, 1.0), disp)
+    return {"disparity": disp, "coarse": coarse, "shear": lo[idx].astype(float),
+            "model_error": err, "confidence": conf, "valid": valid, "filled": filled}

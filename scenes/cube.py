@@ -63,6 +63,7 @@ class CubeScene:
     spot_end_deg: float = -40.0                # ... and at the last (left)
     spotlight: bool = True                     # False: ambient + fixed light only
     static: bool = False                       # True: U_Z = 0 (for ground-truth checks)
+    focus_distance: float | None = None        # mm: converging cameras (HCI-style)
 
     def __post_init__(self):
         if self.width < 8 or self.height < 8:
@@ -108,8 +109,26 @@ class CubeScene:
         return np.array([(j - (Sx - 1) / 2) * self.spacing[0],
                          (i - (Sy - 1) / 2) * self.spacing[1], 0.0])
 
+    def principal_shift(self, i: int, j: int) -> np.ndarray:
+        """Shift (px, model x and y) of camera (i, j)'s principal point that makes the
+        cameras converge at ``focus_distance``: points at that depth then have zero
+        disparity, as in the HCI benchmark (zero without ``focus_distance``)."""
+        if self.focus_distance is None:
+            return np.zeros(2)
+        return -self.f * self.camera(i, j)[:2] / self.focus_distance
+
+    def disparity(self, Z: np.ndarray) -> np.ndarray:
+        """HCI disparity (px per camera step along x) of depth ``Z`` (mm) at the
+        reference camera: ``f ds_x (1/Z - 1/Z_focus)``."""
+        inv_f = 0.0 if self.focus_distance is None else 1.0 / self.focus_distance
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return self.f * self.spacing[0] * (1.0 / np.asarray(Z, float) - inv_f)
+
     def as_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        if d["focus_distance"] is None:
+            del d["focus_distance"]       # the scenes made before it keep their cache key
+        return d
 
     def key(self) -> str:
         """Hash of everything that changes the images (the render cache key)."""
@@ -145,9 +164,12 @@ def scene_sdl(scene: CubeScene, k: int, i: int, j: int) -> str:
                              vp.Finish("ambient", scene.ambient, "diffuse", scene.diffuse)),
                   "matrix", "<%s>" % ", ".join(f"{v:.12g}" for v in m))
     cam = scene.camera(i, j)
+    # a shifted principal point is an off-axis ray through the image centre: the ray of
+    # image position (x, y) is (dx + x, dy + y, f) in the model frame
+    dx, dy = scene.principal_shift(i, j)
     camera = vp.Camera("perspective", "location", _pov_vec(cam),
                        "right", [scene.width, 0, 0], "up", [0, scene.height, 0],
-                       "direction", [0, 0, scene.f])
+                       "direction", _pov_vec([dx, dy, scene.f]))
     objects = [cube, vp.Background("rgb", 0)]
     if scene.spotlight:
         objects.append(vp.LightSource(_pov_vec(scene.light(k)), "rgb", scene.spot_power,

@@ -59,15 +59,17 @@ def hci_metrics(d_est: np.ndarray, d_gt: np.ndarray, border: int = 15) -> dict:
     return out
 
 
-def _gauss(sigma: float) -> np.ndarray:
+def _gauss(sigma: float, rmax: int | None = None) -> np.ndarray:
     r = max(1, int(np.ceil(3 * sigma)))
+    r = r if rmax is None else min(r, rmax)
     x = np.arange(-r, r + 1, dtype=float)
     w = np.exp(-0.5 * (x / sigma) ** 2)
     return w / w.sum()
 
 
-def _gauss_deriv(sigma: float) -> np.ndarray:
+def _gauss_deriv(sigma: float, rmax: int | None = None) -> np.ndarray:
     r = max(1, int(np.ceil(3 * sigma)))
+    r = r if rmax is None else min(r, rmax)
     x = np.arange(-r, r + 1, dtype=float)
     w = np.exp(-0.5 * (x / sigma) ** 2)
     w /= w.sum()
@@ -84,7 +86,8 @@ def epi_structure_tensor(views: np.ndarray, inner: float = 0.8, outer: float = 2
     inner, outer : float
         Inner (derivative) and outer (integration) Gaussian scales in pixels; along the
         view axis the derivative is the Gaussian derivative at the centre view and the
-        integration a Gaussian over the views (same scales, in views).
+        integration a Gaussian over the views (same scales, in views; both truncated to
+        the views there are and renormalised).
 
     Returns
     -------
@@ -106,12 +109,14 @@ def epi_structure_tensor(views: np.ndarray, inner: float = 0.8, outer: float = 2
                          mode="nearest")
         Es = correlate1d(correlate1d(E, gi, axis=img_ax, mode="nearest"), gi, axis=other,
                          mode="nearest")
-        Ec = correlate1d(Es, di, axis=0, mode="nearest")    # derivative across the views
-        Exs = correlate1d(Ex, gi, axis=0, mode="nearest")
+        # across the views only the views there are: kernels truncated to n and
+        # renormalised (a repeated edge view would bias the derivative)
+        Ec = correlate1d(Es, _gauss_deriv(inner, cc), axis=0, mode="nearest")
+        Exs = correlate1d(Ex, _gauss(inner, cc), axis=0, mode="nearest")
         go = _gauss(outer)
-        wv = _gauss(outer)
+        wv = _gauss(outer, cc)
         rv = wv.size // 2
-        sel = np.arange(cc - rv, cc + rv + 1).clip(0, n - 1)
+        sel = np.arange(cc - rv, cc + rv + 1)
 
         def integrate(a):
             a = correlate1d(correlate1d(a, go, axis=1, mode="nearest"), go, axis=2,

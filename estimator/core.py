@@ -197,6 +197,27 @@ def _axis_pair(name: str, samples: int, axis: str) -> FilterPair:
     raise InputError(f"too few {axis}: {samples}; the derivative filters need at least 3")
 
 
+def _time_window(s, T: int, k_ref: int, models) -> tuple:
+    """The temporal filter pair and the temporal radius of Ω that fit the frames."""
+    reach = min(k_ref, T - 1 - k_ref)
+    needs_t = any(m != "bcc" for m in models)   # I t rows need t to vary over Omega
+    time = None
+    for cand in (get_filter_pair(s.filters), get_filter_pair("matched3")):
+        room = reach - cand.radius
+        if room >= (1 if needs_t else 0):
+            time = cand
+            break
+    if time is None:
+        need = "at least 5 frames (3 in the temporal window)" if needs_t else "at least 3 frames"
+        raise InputError(f"too few frames around the reference frame: T = {T}, k_ref = "
+                         f"{k_ref}; models {models} need {need}")
+    R_t = min(2, reach - time.radius) if s.temporal_radius is None else int(s.temporal_radius)
+    if R_t < 0 or R_t > reach - time.radius or (needs_t and R_t < 1):
+        raise InputError(f"temporal_radius {R_t} does not fit: frames {k_ref} +- {R_t} need "
+                         f"{time.radius} more frames either side, T = {T}")
+    return time, R_t
+
+
 def _prepare(volume, focal_length, camera_spacing, principal_point, s: EstimatorSettings,
              models: tuple[str, ...]):
     volume, amax = _check_volume(volume, fast=_uses_numba(s, np.shape(volume)))
@@ -233,7 +254,8 @@ def _prepare(volume, focal_length, camera_spacing, principal_point, s: Estimator
     k_ref = (T - 1) // 2 if s.ref_frame is None else int(s.ref_frame)
     if not 0 <= k_ref < T:
         raise InputError(f"ref_frame {k_ref} outside the {T} frames")
-    if T == 1:
+    static = T == 1
+    if static:
         # a static light field: depth and slopes from the camera axes alone
         bad = [m for m in models if m != "bcc"]
         if bad:
@@ -242,32 +264,9 @@ def _prepare(volume, focal_length, camera_spacing, principal_point, s: Estimator
         if s.temporal_radius not in (None, 0):
             raise InputError(f"temporal_radius {s.temporal_radius}: a light field of one "
                              "frame has no time axis")
-        R = s.window // 2
-        halo = R + spatial.radius
-        if H <= 2 * halo or W <= 2 * halo:
-            raise InputError(f"image {H}x{W} too small for a {s.window}-tap window and "
-                             f"{spatial.taps}-tap filters: need more than {2 * halo} "
-                             "pixels per side")
-        return dict(volume=volume, scale=_unit_scale(amax), f=f,
-                    spacing=(sp[0], sp[1] if Sy > 1 else 0.0), cx=cx, cy=cy,
-                    spatial=spatial, cam_x=cam_x, cam_y=cam_y, time=None, k_ref=0, R_t=0,
-                    halo=halo, grid_dims=2 if Sy > 1 else 1, static=True)
-    reach = min(k_ref, T - 1 - k_ref)
-    needs_t = any(m != "bcc" for m in models)   # I t rows need t to vary over Omega
-    time = None
-    for cand in (get_filter_pair(s.filters), get_filter_pair("matched3")):
-        room = reach - cand.radius
-        if room >= (1 if needs_t else 0):
-            time = cand
-            break
-    if time is None:
-        need = "at least 5 frames (3 in the temporal window)" if needs_t else "at least 3 frames"
-        raise InputError(f"too few frames around the reference frame: T = {T}, k_ref = "
-                         f"{k_ref}; models {models} need {need}")
-    R_t = min(2, reach - time.radius) if s.temporal_radius is None else int(s.temporal_radius)
-    if R_t < 0 or R_t > reach - time.radius or (needs_t and R_t < 1):
-        raise InputError(f"temporal_radius {R_t} does not fit: frames {k_ref} +- {R_t} need "
-                         f"{time.radius} more frames either side, T = {T}")
+        time, k_ref, R_t = None, 0, 0
+    else:
+        time, R_t = _time_window(s, T, k_ref, models)
     R = s.window // 2
     halo = R + spatial.radius
     if H <= 2 * halo or W <= 2 * halo:
@@ -277,7 +276,7 @@ def _prepare(volume, focal_length, camera_spacing, principal_point, s: Estimator
     grid_dims = 2 if Sy > 1 else 1
     return dict(volume=volume, scale=_unit_scale(amax), f=f, spacing=(sp[0], sp[1] if Sy > 1 else 0.0), cx=cx, cy=cy,
                 spatial=spatial, cam_x=cam_x, cam_y=cam_y, time=time, k_ref=k_ref, R_t=R_t,
-                halo=halo, grid_dims=grid_dims, static=False)
+                halo=halo, grid_dims=grid_dims, static=static)
 
 
 def estimate(volume: np.ndarray, focal_length: float, camera_spacing, *, model: str = "full",

@@ -482,10 +482,25 @@ def cmd_peers(a) -> int:
         lf = load_hci(a.hci)
         if "disparity" not in lf.truth:
             raise ValueError(f"{a.hci}: no gt_disp_lowres.pfm to score against")
-        out = [run_depth(m, lf.volume[0], lf.truth["disparity"]) for m in DEPTH_METHODS]
+        views, gt = lf.volume[0], lf.truth["disparity"]
+        n = views.shape[0]
+        kw = {}
+        rng = (lf.meta.get("hci") or {}).get("disp_range")
+        if rng:
+            # the shears cover the scene's stated disparity range
+            kw = {"shifts": tuple(range(int(np.floor(rng[0])), int(np.ceil(rng[1])) + 1))}
+        out = []
+        for m in DEPTH_METHODS:
+            r = run_depth(m, views, gt, **(kw if m.startswith("gridflow_") else {}))
+            used = n if m in ("gridflow_occlusion", "epi_st") else min(5, n)
+            out.append({**r, "views": f"{used}x{used}"})
+        if n > 5:
+            # the occlusion-aware shears on the central 5 x 5 alone: what the outer views add
+            r = run_depth("gridflow_occlusion", views, gt, grid=5, **kw)
+            out.append({**r, "views": "5x5"})
         t = pd.DataFrame([{k: v for k, v in r.items() if k not in ("disparity", "confidence")}
                           for r in out])
-        print(f"{a.hci} ({lf.volume.shape[1]}x{lf.volume.shape[2]} views):")
+        print(f"{a.hci} ({n}x{n} views{'; shears ' + str(list(kw['shifts'])) if kw else ''}):")
         print(t.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
     return 0
 

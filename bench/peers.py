@@ -9,7 +9,12 @@ in pixels per camera step with the HCI sign.
   field (model ``bcc`` without a time axis), on the central ``grid x grid`` views;
 * ``gridflow_refocus``: the same over a range of integer shears (see
   :func:`gridflow.estimator.lightfield.estimate_refocused`), for disparities beyond
-  +-1 px per view;
+  +-1 px per view, each pixel's shear the one nearest to a coarse disparity
+  (``select="coarse"``), on the central 5 x 5 views;
+* ``gridflow_occlusion``: the shears again, each pixel's estimate chosen among camera
+  sub-grids and shifted windows by a guided aggregation of the model error
+  (``select="occlusion"``), on all views (5 x 5 sub-grids at the centre, edges and
+  corners of a larger grid);
 * ``epi_st``: the EPI structure tensor of Wanner and Goldluecke (CVPR 2012; TPAMI 2014),
   written here: orientation of the horizontal and vertical epipolar-plane images from a
   Gaussian-smoothed 2-D structure tensor, the more coherent of the two kept per pixel.
@@ -148,22 +153,34 @@ def _gridflow(views, grid: int = 5, sigma: float = 2.0, window: int = 9):
     return e["disparity"], -np.log10(np.maximum(e["model_error"], 1e-300))
 
 
-def _gridflow_refocus(views, grid: int = 5, sigma: float = 2.0, window: int = 9,
-                      shifts=(-3, -2, -1, 0, 1, 2, 3)):
+def _central(views, grid):
+    n = views.shape[0]
+    grid = n if grid is None else int(grid)
+    c0 = (n - grid) // 2
+    return views[c0:c0 + grid, c0:c0 + grid]
+
+
+def _gridflow_refocus(views, grid: int | None = 5, shifts=(-3, -2, -1, 0, 1, 2, 3)):
     from gridflow.estimator.lightfield import estimate_refocused
 
-    n = views.shape[0]
-    c0 = (n - grid) // 2
     # dense, as the benchmark scores every pixel: pixels without an admissible estimate
     # are filled from their neighbours (``filled``)
-    res = estimate_refocused(views[c0:c0 + grid, c0:c0 + grid], shifts=shifts, sigma=sigma,
-                             window=window, fill=True)
+    res = estimate_refocused(_central(views, grid), shifts=shifts, select="coarse", fill=True)
+    return res["disparity"], res["confidence"]
+
+
+def _gridflow_occlusion(views, grid: int | None = None, shifts=(-3, -2, -1, 0, 1, 2, 3)):
+    from gridflow.estimator.lightfield import estimate_refocused
+
+    res = estimate_refocused(_central(views, grid), shifts=shifts, select="occlusion",
+                             fill=True)
     return res["disparity"], res["confidence"]
 
 
 DEPTH_METHODS = {
     "gridflow": _gridflow,
     "gridflow_refocus": _gridflow_refocus,
+    "gridflow_occlusion": _gridflow_occlusion,
     "epi_st": lambda views: epi_structure_tensor(views),
 }
 

@@ -6,12 +6,28 @@ about +-1 px per view.  Beyond that this field shears (refocuses) the light fiel
 ``(r, c)`` shifted by ``s (c - cc)`` pixels in x and ``s (r - cc)`` in y brings points of
 disparity ``s`` to disparity 0, so the estimator sees the residual ``d - s`` only.
 :func:`estimate_refocused` does so for a set of integer shears (integer shifts move
-pixels exactly, with no interpolation) and keeps, per pixel, the estimate of the shear
-nearest to a coarse disparity.  The coarse disparity comes from the same estimator on
-the light field low-passed in x and y (a Gaussian of ``coarse_sigma`` px): without fine
-texture the views' shifts stay within the filters' range even at several pixels per
-view, where the fine texture would alias (a shear far from the truth can then fit the
-data as well as the right one, which a choice by model error alone falls for).
+pixels exactly, with no interpolation) and chooses, per pixel, one shear's estimate
+(admissible: within half a pixel of its shear).  Two ways to choose:
+
+``select="coarse"``
+    The shear nearest to a coarse disparity, from the same estimator on the light field
+    low-passed in x and y (a Gaussian of ``coarse_sigma`` px): without fine texture the
+    views' shifts stay within the filters' range even at several pixels per view, where
+    fine periodic texture aliases (a shear far from the truth can then fit the data as
+    well as the right one, which a choice by model error alone falls for).  The coarse
+    pass's wide window carries a bright foreground's disparity over thin background
+    next to it (fattening).
+``select="occlusion"``
+    For scenes with occlusions.  Per shear, the estimate is taken from whichever of
+    (a) the camera sub-grids at the centre, edges and corners of the grid (on 9 x 9
+    views, nine 5 x 5 sub-grids: all 81 views; a point near an occluding edge is
+    unoccluded in the sub-grid on its own side) and (b) the windows shifted by up to
+    their radius that still cover the pixel (one of them lies on the pixel's own side
+    of an edge) fits best, i.e. has the smallest model error.  Across shears, the log
+    model errors are aggregated by a guided filter (He, Sun and Tang, ECCV 2010) on the
+    centre view, so each pixel pools the costs of neighbours of its own brightness,
+    and the smallest wins.  ``gridflow peers`` scores both side by side
+    (``results/peers_depth.csv`` for the rendered cube).
 """
 
 from __future__ import annotations
@@ -66,23 +82,85 @@ def _lowpass(views: np.ndarray, sigma: float) -> np.ndarray:
     return res
 
 
+def _subgrid_centres(n: int, m: int) -> list[tuple[int, int]]:
+    """Centres of the ``m x m`` sub-grids at the centre, edges and corners of an n x n grid."""
+    h = (n - m) // 2
+    offs = sorted({-h, 0, h})
+    cc = n // 2
+    return [(cc + a, cc + b) for a in offs for b in offs]
+
+
+def _shift_in(a: np.ndarray, oy: int, ox: int, fill) -> np.ndarray:
+    """``out[y, x] = a[y + oy, x + ox]`` over the last two axes, ``fill`` outside."""
+    out = np.full_like(a, fill)
+    H, W = a.shape[-2:]
+    ys, yd = slice(max(oy, 0), H + min(oy, 0)), slice(max(-oy, 0), H + min(-oy, 0))
+    xs, xd = slice(max(ox, 0), W + min(ox, 0)), slice(max(-ox, 0), W + min(-ox, 0))
+    out[..., yd, xd] = a[..., ys, xs]
+    return out
+
+
+def _box(a: np.ndarray, r: int) -> np.ndarray:
+    """Mean over a (2r+1)^2 box, edges repeated (cumulative sums; no scipy needed)."""
+    p = np.pad(a, r, mode="edge")
+    c = np.cumsum(np.cumsum(p, 0), 1)
+    c = np.pad(c, ((1, 0), (1, 0)))
+    k = 2 * r + 1
+    return (c[k:, k:] - c[:-k, k:] - c[k:, :-k] + c[:-k, :-k]) / (k * k)
+
+
+def _guided(p: np.ndarray, guide: np.ndarray, r: int, eps: float) -> np.ndarray:
+    """The guided filter of He, Sun and Tang (ECCV 2010): ``p`` smoothed over (2r+1)^2
+    boxes, its edges following those of ``guide`` (both shape (H, W))."""
+    mI, mp = _box(guide, r), _box(p, r)
+    a = (_box(guide * p, r) - mI * mp) / (_box(guide * guide, r) - mI * mI + eps)
+    b = mp - a * mI
+    return _box(a, r) * guide + _box(b, r)
+
+
+def _admissible(e, s: int, m: int):
+    """The estimate at shear ``s`` where admissible (finite, within half a pixel of the
+    shear, its window clear of the ``m`` px of repeated edge the shear moved in)."""
+    H, W = e.interior.shape
+    clear = np.zeros((H, W), dtype=bool)
+    clear[m:H - m, m:W - m] = True
+    clear &= (np.roll(np.roll(e.interior, m, 0), m, 1)
+              & np.roll(np.roll(e.interior, -m, 0), -m, 1))
+    d = s + e["disparity"]
+    ok = clear & np.isfinite(d) & np.isfinite(e["model_error"]) & (np.abs(d - s) <= 0.5)
+    return np.where(ok, d, np.nan), np.where(ok, e["model_error"], np.inf)
+
+
 def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
-                       sigma: float = 2.0, window: int = 9, filters: str = "matched5",
-                       coarse_sigma: float = 2.0, fill: bool = False) -> dict:
+                       sigma: float | None = None, window: int | None = None,
+                       filters: str = "matched5", select: str = "coarse",
+                       subgrid: int = 5, aggregate: int = 3, coarse_sigma: float = 2.0,
+                       fill: bool = False) -> dict:
     """Disparity of the centre view over a range of integer shears.
 
     Parameters
     ----------
     views : ndarray, shape (n, n, H, W)
-        A static light field, n odd (e.g. the central 5 x 5 of an HCI scene); camera
-        steps are the unit of disparity (HCI sign: a centre pixel with disparity d
-        appears in view (r, c) at (x - d (c - cc), y - d (r - cc))).
+        A static light field, n odd (e.g. the 9 x 9 views of an HCI scene); camera steps
+        are the unit of disparity (HCI sign: a centre pixel with disparity d appears in
+        view (r, c) at (x - d (c - cc), y - d (r - cc))).
     shifts : sequence of int
         The shears tried; they should cover the scene's disparity range.
     sigma, window, filters
-        Estimator settings (:class:`estimator.EstimatorSettings`).
+        Estimator settings (:class:`estimator.EstimatorSettings`); defaults 1 px and 5
+        taps for ``select="occlusion"``, 2 px and 9 taps for ``select="coarse"``.
+    select : {"occlusion", "coarse"}
+        How each pixel's estimate is chosen among the shears (module docstring):
+        ``"occlusion"`` (sub-grids, shifted windows and a guided cost aggregation; for
+        scenes with occlusions) or ``"coarse"`` (the shear nearest to a coarse
+        disparity; for fine periodic texture, where a wrong shear can alias).
+    subgrid : int
+        ``"occlusion"``: odd size of the camera sub-grids (at the centre, edges and
+        corners of the grid: nine of them on a 9 x 9 grid, one on a 5 x 5).
+    aggregate : int
+        ``"occlusion"``: radius (px) of the guided filter that aggregates the costs.
     coarse_sigma : float
-        Low-pass of the coarse pass, px; its window is twice ``sigma``.
+        ``"coarse"``: low-pass of the coarse pass, px; its window is twice ``sigma``.
     fill : bool
         Give pixels without an admissible estimate the normalised convolution (Gaussian,
         ``2 sigma``) of their neighbours' estimates; ``filled`` marks them.
@@ -90,12 +168,11 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     Returns
     -------
     dict of str to ndarray, each shape (H, W)
-        ``disparity``; ``coarse``: the coarse disparity; ``shear``: the shear used (the
-        one nearest to the coarse disparity where its estimate is admissible, else the
-        admissible one with the smallest model error); ``model_error``: its model error;
-        ``confidence``: ``-log10`` of the model error relative to its median over the
-        image (larger is better; threshold it to mask); ``valid``: an admissible estimate
-        (finite, within half a pixel of its shear); ``filled``: see ``fill``.
+        ``disparity``; ``shear``: the shear used; ``model_error``: the model error of
+        the estimate kept; ``confidence``: ``-log10`` of that model error relative to
+        its median over the image (larger is better; threshold it to mask); ``valid``:
+        an admissible estimate (finite, within half a pixel of its shear); ``filled``:
+        see ``fill``; with ``select="coarse"`` also ``coarse``: the coarse disparity.
     """
     v = np.asarray(views, dtype=np.float64)
     if v.ndim != 4 or v.shape[0] != v.shape[1] or v.shape[0] % 2 == 0:
@@ -103,52 +180,23 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     shifts = [int(s) for s in shifts]
     if not shifts or len(set(shifts)) != len(shifts):
         raise InputError(f"shifts must be distinct integers, got {shifts}")
+    if select not in ("occlusion", "coarse"):
+        raise InputError(f"select must be 'occlusion' or 'coarse', got {select!r}")
+    n = v.shape[0]
+    if select == "occlusion" and (subgrid % 2 == 0 or not 3 <= subgrid <= n):
+        raise InputError(f"subgrid must be odd, at least 3 and at most the grid's {n}, "
+                         f"got {subgrid}")
+    if sigma is None:
+        sigma = 1.0 if select == "occlusion" else 2.0
+    if window is None:
+        window = 5 if select == "occlusion" else 9
     H, W = v.shape[-2:]
     lo = np.array(sorted(shifts))
-    win2 = 2 * (window // 2) * 2 + 1
-    coarse = estimate(_lowpass(v, coarse_sigma)[None], float(W), (1.0, 1.0), model="bcc",
-                      sigma=2 * sigma, window=win2, filters=filters)["disparity"]
-    # the coarse window reaches further: near the border take the nearest coarse value
-    bad = ~np.isfinite(coarse)
-    if bad.any() and not bad.all():
-        from scipy.ndimage import distance_transform_edt
-
-        near = distance_transform_edt(bad, return_distances=False, return_indices=True)
-        coarse = coarse[tuple(near)]
-    # the shear nearest to the coarse disparity (the nearest end of the range beyond it)
-    pick = np.where(np.isfinite(coarse),
-                    lo[np.abs(np.nan_to_num(coarse)[..., None] - lo).argmin(-1)], np.nan)
-    # every shear over the whole image: the estimate, its model error, admissible where
-    # the residual stays within half a pixel of the shear
-    D = np.full((lo.size, H, W), np.nan)
-    E = np.full((lo.size, H, W), np.inf)
-    for n_s, s in enumerate(lo):
-        e = estimate(shear(v, int(s))[None], float(W), (1.0, 1.0), model="bcc", sigma=sigma,
-                     window=window, filters=filters)
-        # a shear moves up to |s| cc pixels of repeated edge into the outer views: keep
-        # the pixels whose window stays clear of them
-        m = abs(int(s)) * (v.shape[0] // 2)
-        clear = np.zeros((H, W), dtype=bool)
-        clear[m:H - m, m:W - m] = True
-        clear &= (np.roll(np.roll(e.interior, m, 0), m, 1)
-                  & np.roll(np.roll(e.interior, -m, 0), -m, 1))
-        d = s + e["disparity"]
-        ok = clear & np.isfinite(d) & np.isfinite(e["model_error"]) & (np.abs(d - s) <= 0.5)
-        D[n_s] = np.where(ok, d, np.nan)
-        E[n_s] = np.where(ok, e["model_error"], np.inf)
-    # the shear nearest to the coarse disparity where it is admissible; elsewhere the
-    # admissible neighbouring shear (one step either side) with the smaller model error;
-    # shears further away are not considered: with fine texture an aliased shear can fit
-    # as well as the right one
-    idx_near = np.where(np.isfinite(pick), np.abs(np.nan_to_num(pick)[None] - lo[:, None, None])
-                        .argmin(0), 0)
-    rows, cols = np.indices((H, W))
-    near_ok = np.isfinite(D[idx_near, rows, cols])
-    far = np.abs(np.arange(lo.size)[:, None, None] - idx_near[None]) > 1
-    idx_best = np.where(far, np.inf, E).argmin(0)
-    idx = np.where(near_ok, idx_near, idx_best)
-    disp = D[idx, rows, cols]
-    err = np.where(np.isfinite(disp), E[idx, rows, cols], np.nan)
+    if select == "coarse":
+        out = _select_coarse(v, lo, sigma, window, filters, coarse_sigma)
+    else:
+        out = _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate)
+    disp, err = out["disparity"], out["model_error"]
     valid = np.isfinite(disp)
     with np.errstate(divide="ignore", invalid="ignore"):
         med = np.nanmedian(err[valid]) if valid.any() else np.nan
@@ -162,8 +210,104 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         w = valid.astype(float)
         num = gaussian_filter(np.where(valid, disp, 0.0), 2 * sigma, mode="nearest")
         den = gaussian_filter(w, 2 * sigma, mode="nearest")
-        inside = np.isfinite(D).any(0) | np.isfinite(coarse)
-        filled = ~valid & inside & (den > 1e-3)
+        filled = ~valid & out["inside"] & (den > 1e-3)
         disp = np.where(filled, num / np.where(den > 0, den, 1.0), disp)
-    return {"disparity": disp, "coarse": coarse, "shear": lo[idx].astype(float),
-            "model_error": err, "confidence": conf, "valid": valid, "filled": filled}
+    res = {"disparity": disp, "shear": out["shear"], "model_error": err, "confidence": conf,
+           "valid": valid, "filled": filled}
+    if "coarse" in out:
+        res["coarse"] = out["coarse"]
+    return res
+
+
+def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate) -> dict:
+    """Per shear, the best of the sub-grids and shifted windows; across shears, the
+    smallest aggregated cost."""
+    n = v.shape[0]
+    H, W = v.shape[-2:]
+    h = subgrid // 2
+    R = window // 2
+    centres = _subgrid_centres(n, subgrid)
+    rows, cols = np.indices((H, W))
+    D = np.full((lo.size, H, W), np.nan)
+    E = np.full((lo.size, H, W), np.inf)
+    for k, s in enumerate(lo):
+        sv = shear(v, int(s))
+        m = abs(int(s)) * (n // 2)
+        for rc, cc in centres:
+            # a sub-grid off the centre sees the centre's point within |d - s| * (its
+            # offset) <= 1 px of the same pixel after the shear: the views on one side of
+            # an occluding edge, where the full grid mixes two surfaces
+            sub = np.ascontiguousarray(sv[rc - h:rc + h + 1, cc - h:cc + h + 1])[None]
+            e = estimate(sub, float(W), (1.0, 1.0), model="bcc", sigma=sigma,
+                         window=window, filters=filters)
+            d, err = _admissible(e, int(s), m)
+            # shifted windows: a pixel may take the estimate of a window that still
+            # covers it (offset up to the window's radius), the one that fits best;
+            # near an edge that is a window on the pixel's own side of it
+            for oy in range(-R, R + 1):
+                for ox in range(-R, R + 1):
+                    es = _shift_in(err, oy, ox, np.inf)
+                    better = es < E[k]
+                    E[k] = np.where(better, es, E[k])
+                    D[k] = np.where(better, _shift_in(d, oy, ox, np.nan), D[k])
+    # cost per shear: log model error (inadmissible: worse than any admissible one),
+    # aggregated by a guided filter on the centre view so that a pixel pools the costs
+    # of neighbours of its own brightness (its own surface), not those across an edge
+    fin = np.isfinite(E)
+    # the model error is an eigenvalue: >= 0, but round-off can make it 0 or slightly
+    # negative on noise-free data; floor it nine decades below the median
+    pos = E[fin & (E > 0)]
+    floor = 1e-9 * float(np.median(pos)) if pos.size else 1e-300
+    L = np.log10(np.maximum(np.where(fin, E, 1.0), floor))
+    worst = L[fin].max() + 1.0 if fin.any() else 0.0
+    C = np.where(fin, L, worst)
+    guide = v[n // 2, n // 2]
+    span = float(np.ptp(guide))
+    guide = (guide - guide.min()) / (span if span > 0 else 1.0)
+    if aggregate > 0:
+        C = np.stack([_guided(c, guide, int(aggregate), 1e-3) for c in C])
+    idx = C.argmin(0)
+    disp = D[idx, rows, cols]
+    err = np.where(np.isfinite(disp), E[idx, rows, cols], np.nan)
+    return {"disparity": disp, "model_error": err, "shear": lo[idx].astype(float),
+            "inside": fin.any(0)}
+
+
+def _select_coarse(v, lo, sigma, window, filters, coarse_sigma) -> dict:
+    """The shear nearest to a coarse disparity from the low-passed light field."""
+    n = v.shape[0]
+    H, W = v.shape[-2:]
+    win2 = 2 * (window // 2) * 2 + 1
+    coarse = estimate(_lowpass(v, coarse_sigma)[None], float(W), (1.0, 1.0), model="bcc",
+                      sigma=2 * sigma, window=win2, filters=filters)["disparity"]
+    # the coarse window reaches further: near the border take the nearest coarse value
+    bad = ~np.isfinite(coarse)
+    if bad.any() and not bad.all():
+        from scipy.ndimage import distance_transform_edt
+
+        near = distance_transform_edt(bad, return_distances=False, return_indices=True)
+        coarse = coarse[tuple(near)]
+    # the shear nearest to the coarse disparity (the nearest end of the range beyond it)
+    pick = np.where(np.isfinite(coarse),
+                    lo[np.abs(np.nan_to_num(coarse)[..., None] - lo).argmin(-1)], np.nan)
+    D = np.full((lo.size, H, W), np.nan)
+    E = np.full((lo.size, H, W), np.inf)
+    for k, s in enumerate(lo):
+        e = estimate(shear(v, int(s))[None], float(W), (1.0, 1.0), model="bcc", sigma=sigma,
+                     window=window, filters=filters)
+        D[k], E[k] = _admissible(e, int(s), abs(int(s)) * (n // 2))
+    # the shear nearest to the coarse disparity where it is admissible; elsewhere the
+    # admissible neighbouring shear (one step either side) with the smaller model error;
+    # shears further away are not considered: with fine texture an aliased shear can fit
+    # as well as the right one
+    idx_near = np.where(np.isfinite(pick), np.abs(np.nan_to_num(pick)[None] - lo[:, None, None])
+                        .argmin(0), 0)
+    rows, cols = np.indices((H, W))
+    near_ok = np.isfinite(D[idx_near, rows, cols])
+    far = np.abs(np.arange(lo.size)[:, None, None] - idx_near[None]) > 1
+    idx_best = np.where(far, np.inf, E).argmin(0)
+    idx = np.where(near_ok, idx_near, idx_best)
+    disp = D[idx, rows, cols]
+    err = np.where(np.isfinite(disp), E[idx, rows, cols], np.nan)
+    return {"disparity": disp, "model_error": err, "shear": lo[idx].astype(float),
+            "coarse": coarse, "inside": np.isfinite(D).any(0) | np.isfinite(coarse)}

@@ -212,6 +212,12 @@ def load_hci(folder, views: int | None = None) -> GridVolume:
         params = read_parameters(cfg)
         geometry = _geometry(params, cfg, W)
         meta["hci"] = {**geometry, "scene": params.get("meta", {}).get("scene")}
+        # the benchmark states each scene's disparity range (an input, not ground truth:
+        # methods may use it to bound their search)
+        m = params.get("meta", {})
+        if isinstance(m.get("disp_min"), float | int) and isinstance(m.get("disp_max"),
+                                                                     float | int):
+            meta["hci"]["disp_range"] = [float(m["disp_min"]), float(m["disp_max"])]
     truth = {}
     for name, key in (("gt_disp_lowres.pfm", "disparity"), ("gt_depth_lowres.pfm", "depth")):
         if (folder / name).is_file():

@@ -143,6 +143,73 @@ def test_refocusing_reaches_large_disparities():
     assert np.isnan(res["disparity"][~ok]).all()
 
 
+def layered_views(n=9, size=96, d_fg=0.5, d_bg=-1.5, band=(40, 52), seed=0):
+    """Two fronto-parallel layers, as on the HCI *backgammon* scene: a bright textured
+    band (rows ``band`` of the centre view, disparity ``d_fg``) in front of a darker,
+    weaker textured background (``d_bg``); each view shows the band where the ray meets
+    it, else the background (exact occlusion, no noise)."""
+    rng = np.random.default_rng(seed)
+
+    def texture(mean, amp):
+        k = rng.normal(size=(6, 2)) * 0.5
+        ph = rng.uniform(0, 2 * np.pi, 6)
+        return lambda X, Y: mean + amp * sum(np.sin(k[i, 0] * X + k[i, 1] * Y + ph[i])
+                                             for i in range(6))
+
+    fg, bg = texture(0.7, 0.06), texture(0.3, 0.03)
+    cc = n // 2
+    y, x = np.mgrid[0:size, 0:size].astype(float)
+    views = np.empty((n, n, size, size))
+    for r in range(n):
+        for c in range(n):
+            dc, dr = c - cc, r - cc
+            yf = y + d_fg * dr
+            inside = (yf >= band[0]) & (yf < band[1])
+            views[r, c] = np.where(inside, fg(x + d_fg * dc, yf), bg(x + d_bg * dc, y + d_bg * dr))
+    truth = np.where((y >= band[0]) & (y < band[1]), d_fg, d_bg)
+    return views, truth
+
+
+def test_occlusion_aware_shears_keep_edges_sharp():
+    """A bright band 2 px per view in front of a dim background.  The coarse choice
+    carries the band's disparity over the background next to it (fattening); choosing
+    per shear among camera sub-grids and shifted windows, with the costs pooled over
+    pixels of similar brightness, keeps the edges.  Measured BadPix(0.07) within 8 px of
+    the edges: coarse 76 %, occlusion on the central 5 x 5 27 %, on all 9 x 9 views
+    3.3 %; 0 % far from the edges for both occlusion runs.  The data are noise-free and
+    deterministic; the bounds sit between the measured values, so the test fails when
+    an ingredient stops working, not on round-off."""
+    from gridflow.bench.peers import hci_metrics
+    from gridflow.estimator.lightfield import estimate_refocused
+
+    views, truth = layered_views()
+    H = truth.shape[0]
+    y = np.arange(H)[:, None] + np.zeros((1, H))
+    near = np.minimum(np.abs(y - 40), np.abs(y - 51.5)) < 8
+    scored = np.zeros_like(near)
+    scored[15:-15, 15:-15] = True
+
+    def badpix(res, where):
+        err = np.abs(res["disparity"] - truth)[scored & where]
+        return 100.0 * np.mean(~(err <= 0.07))
+
+    shifts = (-2, -1, 0, 1)
+    coarse = estimate_refocused(views[2:7, 2:7], shifts=shifts, select="coarse", fill=True)
+    occ5 = estimate_refocused(views[2:7, 2:7], shifts=shifts, select="occlusion", fill=True)
+    occ9 = estimate_refocused(views, shifts=shifts, select="occlusion", fill=True)
+    assert badpix(coarse, near) > 50.0
+    assert 10.0 < badpix(occ5, near) < 40.0          # shifted windows alone
+    assert badpix(occ9, near) < 10.0                 # plus the outer views' sub-grids
+    assert badpix(occ9, ~near) == 0.0 and badpix(occ5, ~near) == 0.0
+    # the benchmark's metric agrees (its 15-px border, all pixels)
+    assert hci_metrics(occ9["disparity"], truth)["badpix_007"] < 5.0
+    assert set(occ9) == {"disparity", "shear", "model_error", "confidence", "valid", "filled"}
+    with pytest.raises(ValueError, match="select must be"):
+        estimate_refocused(views, select="best")
+    with pytest.raises(ValueError, match="subgrid must be odd"):
+        estimate_refocused(views, select="occlusion", subgrid=4)
+
+
 def test_hci_metrics_and_epi_peer():
     from gridflow.bench.peers import epi_structure_tensor, hci_metrics
 

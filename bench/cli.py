@@ -45,8 +45,12 @@ def _add_estimator_args(p: argparse.ArgumentParser) -> None:
                         "one frame), a comma-separated list, or 'all'; several models share "
                         "one structure tensor, and each is written to OUTPUT with _MODEL "
                         "before the suffix")
-    g.add_argument("--sigma", type=float, default=16.0, help="Gaussian sigma, px (default 16)")
-    g.add_argument("--window", type=int, default=65, help="Gaussian taps (default 65)")
+    g.add_argument("--sigma", type=float, default=None,
+                   help="Gaussian sigma, px (default 16; with --shears 2, or 1 with "
+                        "--select occlusion)")
+    g.add_argument("--window", type=int, default=None,
+                   help="Gaussian taps (default 65; with --shears 9, or 5 with --select "
+                        "occlusion)")
     g.add_argument("--filters", choices=FILTER_NAMES, default="matched5",
                    help="derivative filters (default matched5)")
     g.add_argument("--temporal-radius", type=int, default=None,
@@ -84,7 +88,8 @@ def _model_outputs(output: str, models) -> dict[str, Path]:
 
 
 def _estimator_settings(a) -> dict:
-    return dict(sigma=a.sigma, window=a.window, filters=a.filters,
+    return dict(sigma=16.0 if a.sigma is None else a.sigma,
+                window=65 if a.window is None else a.window, filters=a.filters,
                 temporal_radius=a.temporal_radius, ref_frame=a.ref_frame, method=a.method,
                 slant_correction=not a.no_slant_correction, combine=a.combine)
 
@@ -155,13 +160,96 @@ def _sinusoid_fields():
     return {fl.name for fl in fields(SinusoidParams)}
 
 
+def _shear_range(values: list[str]):
+    """``--shears MIN MAX`` (integers, px per view) or ``--shears auto``."""
+    if values == ["auto"]:
+        return "auto"
+    try:
+        lo, hi = (int(t) for t in values)
+    except ValueError:
+        raise ValueError(f"--shears: expected MIN MAX (two integers) or 'auto', got "
+                         f"{' '.join(values)!r}") from None
+    if lo > hi:
+        raise ValueError(f"--shears: expected MIN <= MAX, got {lo} {hi}")
+    return tuple(range(lo, hi + 1))
+
+
+def _estimate_refocused(a, data, output: str) -> int:
+    """``gridflow estimate --shears``: a static light field refocused over integer shears."""
+    from gridflow.estimator import Estimate
+    from gridflow.estimator.lightfield import estimate_refocused
+    from gridflow.io import save_estimate
+
+    T = data.volume.shape[0]
+    if T != 1:
+        raise ValueError(f"--shears refocuses a light field of one frame; {a.input} has "
+                         f"{T} frames")
+    if a.model not in (None, ("bcc",)):
+        raise ValueError(f"--shears takes model bcc (a light field of one frame), got "
+                         f"{','.join(a.model)}")
+    geometry = data.meta.get("hci")
+    shifts = a.shears
+    if shifts == "auto":
+        rng = (geometry or {}).get("disp_range")
+        if not rng:
+            raise ValueError(f"--shears auto: {a.input} states no disparity range "
+                             "(parameters.cfg [meta] disp_min, disp_max); give MIN:MAX")
+        shifts = tuple(range(int(np.floor(rng[0])), int(np.ceil(rng[1])) + 1))
+    views = data.volume[0]
+    if views.shape[0] != views.shape[1]:
+        raise ValueError(f"--shears needs a square grid of views, {a.input} has "
+                         f"{views.shape[0]}x{views.shape[1]}")
+    occl = a.select == "occlusion"
+    sigma = a.sigma if a.sigma is not None else (1.0 if occl else 2.0)
+    window = a.window if a.window is not None else (5 if occl else 9)
+    t0 = time.perf_counter()
+    res = estimate_refocused(views, shifts, sigma=sigma, window=window,
+                             filters=a.filters, select=a.select, fill=True)
+    dt = time.perf_counter() - t0
+    d = res["disparity"]
+    if geometry:
+        from gridflow.hci import depth_from_disparity
+
+        Z, units = depth_from_disparity(d, geometry), "m (HCI geometry)"
+    else:
+        # parallel cameras: disparity = -v ds_x with v = -f / Z
+        with np.errstate(divide="ignore", invalid="ignore"):
+            Z = data.focal_length * data.camera_spacing[0] / d
+        units = "as camera_spacing"
+    maps = {"disparity": d, "Z": Z, "model_error": res["model_error"],
+            "confidence": res["confidence"], "shear": res["shear"],
+            "filled": res["filled"].astype(float)}
+    est = Estimate(maps=maps, model="bcc", interior=res["valid"] | res["filled"],
+                   settings={"shears": list(shifts), "select": a.select, "sigma": sigma,
+                             "window": window, "filters": a.filters,
+                             "views": list(views.shape[:2]), "Z_units": units})
+    save_estimate(output, est)
+    print(f"wrote {output}: {views.shape[0]}x{views.shape[1]} views refocused over shears "
+          f"{list(shifts)} ({a.select}); {int(res['valid'].sum())} pixels estimated, "
+          f"{int(res['filled'].sum())} filled from their neighbours ('filled')")
+    print(f"estimated in {dt:.2f} s")
+    return 0
+
+
 def cmd_estimate(a) -> int:
     from gridflow.estimator import EstimatorSettings, estimate_models
     from gridflow.io import check_output, save_estimate
 
     settings = _estimator_settings(a)
-    EstimatorSettings(**settings)               # bad settings fail before the volume loads
-    data = _load_input(a.input, views=a.views)
+    if a.shears is None:
+        EstimatorSettings(**settings)           # bad settings fail before the volume loads
+    if a.shears is not None:
+        a.shears = _shear_range(a.shears)
+    views = a.views
+    if views is None:
+        # all views where the occlusion-aware shears use the outer ones, else what the
+        # 5-tap camera filters reach
+        views = None if (a.shears is not None and a.select == "occlusion") else 5
+    data = _load_input(a.input, views=views)
+    if a.shears is not None:
+        output = a.output
+        check_output(output, suffixes=".npz", inputs=[a.input], what="-o")
+        return _estimate_refocused(a, data, output)
     if a.model is None:
         a.model = ("bcc",) if data.volume.shape[0] == 1 else ("full",)
     outputs = _model_outputs(a.output, a.model)
@@ -530,10 +618,18 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("estimate", help="estimate depth, slopes, motion, brightness")
     p.add_argument("input", help="volume .npz, camera-grid folder with grid.json, or an HCI "
                                  "light field scene folder (input_Cam000.png ...)")
-    p.add_argument("--views", type=_positive_int, default=5,
+    p.add_argument("--views", type=_positive_int, default=None,
                    help="HCI scenes: the central VIEWS x VIEWS views to use (odd; default "
-                        "5, what 5-tap camera filters reach)")
+                        "5, what 5-tap camera filters reach; all with --select occlusion)")
     _add_estimator_args(p)
+    p.add_argument("--shears", nargs="+", default=None, metavar="MIN MAX",
+                   help="light fields of one frame: refocus over the integer disparities "
+                        "MIN..MAX (px per view) for disparities beyond about +-1; 'auto': "
+                        "an HCI scene's stated range")
+    p.add_argument("--select", choices=("coarse", "occlusion"), default="coarse",
+                   help="with --shears: each pixel's shear nearest a coarse estimate "
+                        "(default; fine periodic texture) or chosen among camera sub-grids "
+                        "and shifted windows (occlusions; docs/model.md)")
     p.add_argument("-o", "--output", required=True, help="output estimate .npz")
     p.set_defaults(func=cmd_estimate)
 

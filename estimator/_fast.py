@@ -2,10 +2,12 @@
 
 The structure tensor itself is computed by FFT in :mod:`estimator.spectral` (scipy only).
 
-Input scan (:func:`scan_volume`) and camera sums (:func:`camera_sums`)
-    One parallel pass over the volume each: the count of non-finite values with max |V|,
-    and the weighted sums over the camera taps that :func:`estimator.tensor.
-    camera_time_signals` needs (same result as its numpy default, to roundoff).
+Input scan (:func:`scan_volume`), camera sums (:func:`camera_sums`), spatial filtering
+(:func:`spatial_filter`)
+    One parallel pass each: the count of non-finite values with max |V|, the weighted
+    sums over the camera taps that :func:`estimator.tensor.camera_time_signals` needs,
+    and the separable 5-tap x/y filtering of :func:`estimator.tensor.spatial_signals`
+    (same results as their numpy defaults, to roundoff).
 
 Null space (:func:`null_space_fast`)
     The parameter vectors ``P = E M^-1`` do not depend on the basis of the null space, so
@@ -38,7 +40,7 @@ from numba import njit, prange
 from .models import Model
 
 __all__ = ["null_space_fast", "MAX_ITER", "announce_compilation", "compile_kernels",
-           "camera_sums", "scan_volume"]
+           "camera_sums", "scan_volume", "spatial_filter"]
 
 _log = logging.getLogger("gridflow.estimator")
 _announced = False
@@ -87,7 +89,7 @@ MAX_ITER = 8
 _SHIFT = 1e-13
 _CONV = 1e-13
 _CHUNKS = 256
-_N_KERNELS = 12         # functions compiled with cache=True below
+_N_KERNELS = 13         # functions compiled with cache=True below
 
 
 @njit(parallel=True, cache=True)
@@ -120,6 +122,51 @@ def camera_sums(volume, needed, iy0, ix0, rows, weights):
         return _camera_sums_numpy(volume, needed, iy0, ix0, rows, weights)
     out = np.empty((weights.shape[0], needed.size, r1 - r0, volume.shape[4]))
     _camera_sums_kernel(volume, needed, iy0, ix0, r0, r1, weights, out)
+    return out
+
+
+@njit(parallel=True, cache=True)
+def _spatial_kernel(src, kx, ky, out):
+    """Separable correlation of each image ``src[f]`` with ``ky`` along y and ``kx``
+    along x, edge values repeated (as ``tensor._correlate_nearest`` twice); one output
+    row per task: the y-combination of the source rows, then the x-pass of that row."""
+    F, h, W = src.shape
+    ry, rx = ky.size // 2, kx.size // 2
+    for job in prange(F * h):
+        f = job // h
+        y = job - f * h
+        tmp = np.zeros(W)
+        for j in range(ky.size):
+            w = ky[j]
+            if w != 0.0:
+                yy = min(max(y + j - ry, 0), h - 1)
+                for x in range(W):
+                    tmp[x] += w * src[f, yy, x]
+        for x in range(W):
+            acc = 0.0
+            for i in range(kx.size):
+                xx = min(max(x + i - rx, 0), W - 1)
+                acc += kx[i] * tmp[xx]
+            out[f, y, x] = acc
+
+
+def spatial_filter(a, kx, ky):
+    """Parallel drop-in for the separable filtering in ``tensor.spatial_signals``.
+
+    Parameters
+    ----------
+    a : ndarray, shape (F, h, W)
+    kx, ky : ndarray, shape (taps,)
+        Correlation kernels along x and y.
+
+    Returns
+    -------
+    ndarray, shape (F, h, W), float64
+    """
+    src = np.ascontiguousarray(a, dtype=np.float64)
+    out = np.empty_like(src)
+    _spatial_kernel(src, np.ascontiguousarray(kx, dtype=np.float64),
+                    np.ascontiguousarray(ky, dtype=np.float64), out)
     return out
 
 

@@ -340,7 +340,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     # J of a band takes rows * W * n^2 * 8 bytes; bound it (and the FFT work arrays) to
     # ~512 MB, so memory does not grow with the image.
     band = s.band_rows or max(16, int(512e6 // (W * n * n * 8)))
-    sums = None
+    sums = separable = None
     numba_path = _uses_numba(s, vol.shape)
     if s.method == "fast":
         from .spectral import packed_index, structure_tensor_fft, unpack
@@ -348,17 +348,24 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         tensor = structure_tensor_fft
         pidx = packed_index(n)
         if numba_path:
-            from ._fast import announce_compilation, camera_sums, null_space_fast
+            from ._fast import (announce_compilation, camera_sums, null_space_fast,
+                                spatial_filter)
 
             announce_compilation()
-            sums = camera_sums
+            sums, separable = camera_sums, spatial_filter
     else:
         tensor = structure_tensor if s.method == "grouped" else structure_tensor_reference
         solver = null_space
 
     interior = np.zeros((H, W), dtype=bool)
     interior[halo:H - halo, halo:W - halo] = True
-    out = {m: {name: np.full((H, W), np.nan) for name in mdl[m].outputs + ("model_error",)}
+    def nan_border():
+        # the interior is written band by band below; only the border needs its NaN
+        a = np.empty((H, W))
+        a[:halo] = a[H - halo:] = a[:, :halo] = a[:, W - halo:] = np.nan
+        return a
+
+    out = {m: {name: nan_border() for name in mdl[m].outputs + ("model_error",)}
            for m in models}
     cols = np.arange(halo, W - halo)
     for r0 in range(halo, H - halo, band):
@@ -366,7 +373,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         rows_in = slice(r0 - halo, r1 + halo)
         ct = camera_time_signals(vol, frames, c["cam_x"], c["cam_y"], c["time"], rows_in,
                                  scale=c["scale"], camera_sums=sums)
-        sig = spatial_signals(ct, c["spatial"])
+        sig = spatial_signals(ct, c["spatial"], separable=separable)
         del ct
         # J covers rows r0 - spatial.radius .. r1 + spatial.radius; keep the band
         rs = c["spatial"].radius

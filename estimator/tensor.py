@@ -122,7 +122,8 @@ def camera_time_signals(volume: np.ndarray, frames: np.ndarray, cam_x: FilterPai
     return out
 
 
-def spatial_signals(ct: dict[str, np.ndarray], spatial: FilterPair) -> dict[str, np.ndarray]:
+def spatial_signals(ct: dict[str, np.ndarray], spatial: FilterPair,
+                    separable=None) -> dict[str, np.ndarray]:
     """Filter x and y, giving the base signals of the data rows.
 
     Parameters
@@ -130,6 +131,10 @@ def spatial_signals(ct: dict[str, np.ndarray], spatial: FilterPair) -> dict[str,
     ct : dict of str to ndarray, each shape (F, h, W)
         Output of :func:`camera_time_signals` (possibly a band of rows).
     spatial : FilterPair
+    separable : callable, optional
+        ``separable(a, kx, ky)``: ``a`` (F, h, W) correlated with ``kx`` along x and ``ky``
+        along y, edges repeated; default numpy on a thread pool, the fast path passes a
+        parallel kernel with the same result.
 
     Returns
     -------
@@ -153,6 +158,8 @@ def spatial_signals(ct: dict[str, np.ndarray], spatial: FilterPair) -> dict[str,
         jobs["t"] = (ct["t"], p, p)
     if "sy" in ct:
         jobs["sy"] = (ct["sy"], p, p)
+    if separable is not None:
+        return {k: separable(a, kx, ky) for k, (a, kx, ky) in jobs.items()}
     # numpy releases the GIL in its loops: the six signals are filtered on all cores
     with ThreadPoolExecutor() as ex:
         return dict(zip(jobs, ex.map(sep, jobs.values())))

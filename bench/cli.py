@@ -174,10 +174,19 @@ def _shear_range(values: list[str]):
     return tuple(range(lo, hi + 1))
 
 
+def _stated_shears(meta: dict):
+    """The integer shears covering the disparity range an HCI scene's ``parameters.cfg``
+    states (``meta["hci"]["disp_range"]``), or None where it states none."""
+    rng = (meta.get("hci") or {}).get("disp_range")
+    if not rng:
+        return None
+    return tuple(range(int(np.floor(rng[0])), int(np.ceil(rng[1])) + 1))
+
+
 def _estimate_refocused(a, data, output: str) -> int:
     """``gridflow estimate --shears``: a static light field refocused over integer shears."""
     from gridflow.estimator import Estimate
-    from gridflow.estimator.lightfield import estimate_refocused
+    from gridflow.estimator.lightfield import SELECT_DEFAULTS, estimate_refocused
     from gridflow.io import save_estimate
 
     T = data.volume.shape[0]
@@ -190,18 +199,16 @@ def _estimate_refocused(a, data, output: str) -> int:
     geometry = data.meta.get("hci")
     shifts = a.shears
     if shifts == "auto":
-        rng = (geometry or {}).get("disp_range")
-        if not rng:
+        shifts = _stated_shears(data.meta)
+        if shifts is None:
             raise ValueError(f"--shears auto: {a.input} states no disparity range "
-                             "(parameters.cfg [meta] disp_min, disp_max); give MIN:MAX")
-        shifts = tuple(range(int(np.floor(rng[0])), int(np.ceil(rng[1])) + 1))
+                             "(parameters.cfg [meta] disp_min, disp_max); give MIN MAX")
     views = data.volume[0]
     if views.shape[0] != views.shape[1]:
         raise ValueError(f"--shears needs a square grid of views, {a.input} has "
                          f"{views.shape[0]}x{views.shape[1]}")
-    occl = a.select == "occlusion"
-    sigma = a.sigma if a.sigma is not None else (1.0 if occl else 2.0)
-    window = a.window if a.window is not None else (5 if occl else 9)
+    sigma = SELECT_DEFAULTS[a.select][0] if a.sigma is None else a.sigma
+    window = SELECT_DEFAULTS[a.select][1] if a.window is None else a.window
     t0 = time.perf_counter()
     res = estimate_refocused(views, shifts, sigma=sigma, window=window,
                              filters=a.filters, select=a.select, fill=True)
@@ -238,7 +245,7 @@ def cmd_estimate(a) -> int:
     settings = _estimator_settings(a)
     if a.shears is None:
         EstimatorSettings(**settings)           # bad settings fail before the volume loads
-    if a.shears is not None:
+    else:
         a.shears = _shear_range(a.shears)
     views = a.views
     if views is None:
@@ -247,9 +254,8 @@ def cmd_estimate(a) -> int:
         views = None if (a.shears is not None and a.select == "occlusion") else 5
     data = _load_input(a.input, views=views)
     if a.shears is not None:
-        output = a.output
-        check_output(output, suffixes=".npz", inputs=[a.input], what="-o")
-        return _estimate_refocused(a, data, output)
+        check_output(a.output, suffixes=".npz", inputs=[a.input], what="-o")
+        return _estimate_refocused(a, data, a.output)
     if a.model is None:
         a.model = ("bcc",) if data.volume.shape[0] == 1 else ("full",)
     outputs = _model_outputs(a.output, a.model)
@@ -572,11 +578,8 @@ def cmd_peers(a) -> int:
             raise ValueError(f"{a.hci}: no gt_disp_lowres.pfm to score against")
         views, gt = lf.volume[0], lf.truth["disparity"]
         n = views.shape[0]
-        kw = {}
-        rng = (lf.meta.get("hci") or {}).get("disp_range")
-        if rng:
-            # the shears cover the scene's stated disparity range
-            kw = {"shifts": tuple(range(int(np.floor(rng[0])), int(np.ceil(rng[1])) + 1))}
+        shifts = _stated_shears(lf.meta)
+        kw = {} if shifts is None else {"shifts": shifts}
         out = []
         for m in DEPTH_METHODS:
             r = run_depth(m, views, gt, **(kw if m.startswith("gridflow_") else {}))

@@ -36,7 +36,12 @@ import numpy as np
 
 from .core import InputError, estimate
 
-__all__ = ["shear", "estimate_refocused"]
+__all__ = ["shear", "estimate_refocused", "SELECT_DEFAULTS"]
+
+# (sigma px, window taps) of each shear choice when not given: the occlusion-aware choice
+# works with small windows (its shifted windows and sub-grids handle the edges), the
+# coarse one keeps the estimator's usual light-field window
+SELECT_DEFAULTS = {"occlusion": (1.0, 5), "coarse": (2.0, 9)}
 
 
 def shear(views: np.ndarray, s: int) -> np.ndarray:
@@ -147,8 +152,9 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     shifts : sequence of int
         The shears tried; they should cover the scene's disparity range.
     sigma, window, filters
-        Estimator settings (:class:`estimator.EstimatorSettings`); defaults 1 px and 5
-        taps for ``select="occlusion"``, 2 px and 9 taps for ``select="coarse"``.
+        Estimator settings (:class:`estimator.EstimatorSettings`); defaults
+        ``SELECT_DEFAULTS[select]``: 1 px and 5 taps for ``"occlusion"``, 2 px and 9 taps
+        for ``"coarse"``.
     select : {"occlusion", "coarse"}
         How each pixel's estimate is chosen among the shears (module docstring):
         ``"occlusion"`` (sub-grids, shifted windows and a guided cost aggregation; for
@@ -180,16 +186,14 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     shifts = [int(s) for s in shifts]
     if not shifts or len(set(shifts)) != len(shifts):
         raise InputError(f"shifts must be distinct integers, got {shifts}")
-    if select not in ("occlusion", "coarse"):
+    if select not in SELECT_DEFAULTS:
         raise InputError(f"select must be 'occlusion' or 'coarse', got {select!r}")
     n = v.shape[0]
     if select == "occlusion" and (subgrid % 2 == 0 or not 3 <= subgrid <= n):
         raise InputError(f"subgrid must be odd, at least 3 and at most the grid's {n}, "
                          f"got {subgrid}")
-    if sigma is None:
-        sigma = 1.0 if select == "occlusion" else 2.0
-    if window is None:
-        window = 5 if select == "occlusion" else 9
+    sigma = SELECT_DEFAULTS[select][0] if sigma is None else sigma
+    window = SELECT_DEFAULTS[select][1] if window is None else window
     H, W = v.shape[-2:]
     lo = np.array(sorted(shifts))
     if select == "coarse":

@@ -341,18 +341,18 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     # ~512 MB, so memory does not grow with the image.
     band = s.band_rows or max(16, int(512e6 // (W * n * n * 8)))
     sums = separable = None
+    fft_ops = None
     numba_path = _uses_numba(s, vol.shape)
     if s.method == "fast":
-        from .spectral import packed_index, structure_tensor_fft, unpack
+        from .spectral import structure_tensor_fft, unpack
 
         tensor = structure_tensor_fft
-        pidx = packed_index(n)
         if numba_path:
-            from ._fast import (announce_compilation, camera_sums, null_space_fast,
-                                spatial_filter)
+            from ._fast import (FFT_OPS, announce_compilation, camera_sums,
+                                null_space_fast, spatial_filter)
 
             announce_compilation()
-            sums, separable = camera_sums, spatial_filter
+            sums, separable, fft_ops = camera_sums, spatial_filter, FFT_OPS
     else:
         tensor = structure_tensor if s.method == "grouped" else structure_tensor_reference
         solver = null_space
@@ -378,9 +378,10 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         # J covers rows r0 - spatial.radius .. r1 + spatial.radius; keep the band
         rs = c["spatial"].radius
         if s.method == "fast":
-            Jp = tensor(sig, tvals, union.rows, kernels, s.window // 2 + rs,
+            Jp, pidx = tensor(sig, tvals, union.rows, kernels, s.window // 2 + rs,
                         cols=slice(halo, W - halo),
-                        backend="scipy" if numba_path else "numpy")
+                        backend="scipy" if numba_path else "numpy",
+                        **({"ops": fft_ops} if fft_ops else {}))
             Jp = Jp.reshape(Jp.shape[0], -1)
         else:
             J = tensor(sig, tvals, union.rows, kernels, s.window // 2)

@@ -106,11 +106,16 @@ def camera_time_signals(volume: np.ndarray, frames: np.ndarray, cam_x: FilterPai
     sums = (camera_sums or _camera_sums_numpy)(
         volume, np.asarray(needed, dtype=np.int64), iy[0], ix[0], rows,
         np.ascontiguousarray(np.stack(list(combos.values()))))
-    cams = {key: {k: sums[c, j] for j, k in enumerate(needed)}
-            for c, key in enumerate(combos)}
+    cams = {key: sums[c] for c, key in enumerate(combos)}
 
-    def along_t(src: dict[int, np.ndarray], kernel: np.ndarray) -> np.ndarray:
-        return np.stack([sum(w * src[kk] for kk, w in _taps(kernel, int(k))) for k in frames])
+    def along_t(src: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+        # the temporal taps of every frame as one (F, len(needed)) matrix: one BLAS
+        # product over the band instead of F weighted sums of images
+        taps = np.zeros((len(frames), len(needed)))
+        for f, k in enumerate(frames):
+            for kk, w in _taps(kernel, int(k)):
+                taps[f, needed.index(kk)] += w
+        return np.tensordot(taps, src, axes=1)
 
     one = np.ones(1)                          # no time axis: the frames as they are
     out = {"p": along_t(cams["pp"], one if time is None else time.prefilter),

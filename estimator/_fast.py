@@ -882,7 +882,7 @@ def _solve_all(Jp, idx, perm, k, grows, rank_tol, m_tol, max_iter, P, g, err, va
         for t0 in range(c0, c1, _TILE):
             nt = min(_TILE, c1 - t0)
             # a tile of the planes, copied plane by plane (contiguous runs): the lanes then
-            # gather from cache instead of from 120 planes spread over memory
+            # gather from cache instead of from ~100 planes spread over memory
             for e in range(Jp.shape[0]):
                 for j in range(nt):
                     tile[e, j] = Jp[e, t0 + j]

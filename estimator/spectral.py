@@ -14,18 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["ArrayOps", "packed_index", "structure_tensor_fft", "unpack"]
-
-
-def packed_index(n: int) -> np.ndarray:
-    """``idx[a, b]``: plane of entry (a, b) in a packed upper-triangle tensor."""
-    idx = np.empty((n, n), dtype=np.int64)
-    e = 0
-    for a in range(n):
-        for b in range(a, n):
-            idx[a, b] = idx[b, a] = e
-            e += 1
-    return idx
+__all__ = ["ArrayOps", "structure_tensor_fft", "unpack"]
 
 
 class ArrayOps:
@@ -158,7 +147,8 @@ def unpack(Jp: np.ndarray, idx: np.ndarray) -> np.ndarray:
     ----------
     Jp : ndarray, shape (E, N)
     idx : ndarray of int, shape (n, n)
-        Plane of entry (a, b), e.g. a sub-block of :func:`packed_index`.
+        Plane of entry (a, b), e.g. a sub-block of the index
+        :func:`structure_tensor_fft` returns.
 
     Returns
     -------

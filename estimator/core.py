@@ -340,8 +340,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     # J of a band takes rows * W * n^2 * 8 bytes; bound it (and the FFT work arrays) to
     # ~512 MB, so memory does not grow with the image.
     band = s.band_rows or max(16, int(512e6 // (W * n * n * 8)))
-    sums = separable = None
-    fft_ops = None
+    sums = separable = fft_ops = None
     numba_path = _uses_numba(s, vol.shape)
     if s.method == "fast":
         from .spectral import structure_tensor_fft, unpack
@@ -380,8 +379,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         if s.method == "fast":
             Jp, pidx = tensor(sig, tvals, union.rows, kernels, s.window // 2 + rs,
                         cols=slice(halo, W - halo),
-                        backend="scipy" if numba_path else "numpy",
-                        **({"ops": fft_ops} if fft_ops else {}))
+                        backend="scipy" if numba_path else "numpy", ops=fft_ops)
             Jp = Jp.reshape(Jp.shape[0], -1)
         else:
             J = tensor(sig, tvals, union.rows, kernels, s.window // 2)

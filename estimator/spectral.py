@@ -46,15 +46,15 @@ class ArrayOps:
 
 
 def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), workers=None,
-                         backend: str = "scipy", ops=ArrayOps):
+                         backend: str = "scipy", ops=None):
     """Packed structure tensor of a band via FFT.
 
     Parameters and meaning as :func:`estimator.tensor.structure_tensor`, plus ``cols``:
     the columns to keep (the interior), so that no copy is needed afterwards, and
     ``backend``: ``"scipy"`` (multithreaded ``scipy.fft``) or ``"numpy"`` (``numpy.fft``,
     for small images: it spares the ~0.1 s import of scipy.fft and gives the same result
-    to roundoff), and ``ops``: the array steps between the FFTs (:class:`ArrayOps`; the
-    fast path passes parallel kernels).
+    to roundoff), and ``ops``: the array steps between the FFTs (default
+    :class:`ArrayOps`; the fast path passes parallel kernels).
 
     Returns
     -------
@@ -67,6 +67,7 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
     """
     from .tensor import _entry_groups
 
+    ops = ops or ArrayOps
     n = len(rows)
     F, h, W = next(iter(signals.values())).shape
     R = kernels.shape[1] // 2

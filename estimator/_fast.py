@@ -3,7 +3,7 @@
 The structure tensor itself is computed by FFT in :mod:`estimator.spectral` (scipy only).
 
 Input scan (:func:`scan_volume`), camera sums (:func:`camera_sums`), spatial filtering
-(:func:`spatial_filter`), the FFT tensor's products (:class:`FFT_OPS`)
+(:func:`spatial_filter`), the FFT tensor's products (:func:`weighted_product`)
     One parallel pass each: the count of non-finite values with max |V|, the weighted
     sums over the camera taps that :func:`estimator.tensor.camera_time_signals` needs,
     the separable 5-tap x/y filtering of :func:`estimator.tensor.spatial_signals`, and
@@ -40,10 +40,9 @@ import numpy as np
 from numba import njit, prange
 
 from .models import Model
-from .spectral import ArrayOps
 
 __all__ = ["null_space_fast", "MAX_ITER", "announce_compilation", "compile_kernels",
-           "camera_sums", "scan_volume", "spatial_filter", "weighted_product", "FFT_OPS"]
+           "camera_sums", "scan_volume", "spatial_filter", "weighted_product"]
 
 _log = logging.getLogger("gridflow.estimator")
 _announced = False
@@ -201,7 +200,7 @@ def _product_kernel(coef, a, b, out):
 
 
 def weighted_product(coef, a, b, shape):
-    """Parallel drop-in for :meth:`estimator.spectral.ArrayOps.product`.
+    """Parallel drop-in for the products of :func:`estimator.spectral.structure_tensor_fft`.
 
     Parameters
     ----------
@@ -218,13 +217,6 @@ def weighted_product(coef, a, b, shape):
     out = np.empty(shape)
     _product_kernel(np.ascontiguousarray(coef, dtype=np.float64), a, b, out)
     return out
-
-
-class FFT_OPS(ArrayOps):
-    """:class:`estimator.spectral.ArrayOps` with the products as a parallel kernel (the
-    spectrum scalings and copies stay numpy: kernels for them measured no faster)."""
-
-    product = staticmethod(weighted_product)
 
 
 @njit(parallel=True, cache=True)

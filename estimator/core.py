@@ -340,18 +340,18 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     # J of a band takes rows * W * n^2 * 8 bytes; bound it (and the FFT work arrays) to
     # ~512 MB, so memory does not grow with the image.
     band = s.band_rows or max(16, int(512e6 // (W * n * n * 8)))
-    sums = separable = fft_ops = None
+    sums = separable = product = None
     numba_path = _uses_numba(s, vol.shape)
     if s.method == "fast":
         from .spectral import structure_tensor_fft, unpack
 
         tensor = structure_tensor_fft
         if numba_path:
-            from ._fast import (FFT_OPS, announce_compilation, camera_sums,
-                                null_space_fast, spatial_filter)
+            from ._fast import (announce_compilation, camera_sums, null_space_fast,
+                                spatial_filter, weighted_product)
 
             announce_compilation()
-            sums, separable, fft_ops = camera_sums, spatial_filter, FFT_OPS
+            sums, separable, product = camera_sums, spatial_filter, weighted_product
     else:
         tensor = structure_tensor if s.method == "grouped" else structure_tensor_reference
         solver = null_space
@@ -379,7 +379,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         if s.method == "fast":
             Jp, pidx = tensor(sig, tvals, union.rows, kernels, s.window // 2 + rs,
                         cols=slice(halo, W - halo),
-                        backend="scipy" if numba_path else "numpy", ops=fft_ops)
+                        backend="scipy" if numba_path else "numpy", product=product)
             Jp = Jp.reshape(Jp.shape[0], -1)
         else:
             J = tensor(sig, tvals, union.rows, kernels, s.window // 2)

@@ -6,55 +6,29 @@ The entries are grouped by the product of base signals they share (as in
 3x3 pairs of ``w Δ^0..2`` in x and y) is applied in the frequency domain.  At the kept
 (interior) pixels the circular correlation is the same linear correlation as the 65-tap
 FIR, up to floating-point roundoff (padding only where a kept pixel's window would wrap;
-tests: agreement with the entry-by-entry reference to 1e-8 of each quantity's scale).  The result is *packed*: one contiguous (rows, W) plane per distinct
-entry of the upper triangle, so writing it is not strided.
+tests: agreement with the entry-by-entry reference to 1e-8 of each quantity's scale).
+The result is *packed*: one contiguous (rows, W) plane per distinct entry of the upper
+triangle, so writing it is not strided.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["ArrayOps", "structure_tensor_fft", "unpack"]
-
-
-class ArrayOps:
-    """The array steps of :func:`structure_tensor_fft` around its FFTs, in numpy.
-
-    The fast path passes :class:`estimator._fast.FFT_OPS` instead, whose products are a
-    parallel numba kernel (same results to roundoff).
-    """
-
-    @staticmethod
-    def product(coef, a, b, shape):
-        """``sum_f coef[f] a[f] b[f]``, shape (h, W) (``rfft2`` pads it to ``shape``)."""
-        return np.einsum("f,fhw,fhw->hw", coef, a, b)
-
-    @staticmethod
-    def scale_rows(spec, k):
-        """``spec * k[:, None]``: a kernel's spectrum along y."""
-        return spec * k[:, None]
-
-    @staticmethod
-    def scale_cols(spec, rows, k):
-        """``spec[rows] * k[None, :]``: the kept rows times a kernel's spectrum along x."""
-        return spec[rows] * k[None, :]
-
-    @staticmethod
-    def place(dst, src, cols):
-        """``dst[...] = src[:, cols]``."""
-        dst[...] = src[:, cols]
+__all__ = ["structure_tensor_fft", "unpack"]
 
 
 def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), workers=None,
-                         backend: str = "scipy", ops=None):
+                         backend: str = "scipy", product=None):
     """Packed structure tensor of a band via FFT.
 
     Parameters and meaning as :func:`estimator.tensor.structure_tensor`, plus ``cols``:
     the columns to keep (the interior), so that no copy is needed afterwards, and
     ``backend``: ``"scipy"`` (multithreaded ``scipy.fft``) or ``"numpy"`` (``numpy.fft``,
     for small images: it spares the ~0.1 s import of scipy.fft and gives the same result
-    to roundoff), and ``ops``: the array steps between the FFTs (default
-    :class:`ArrayOps`; the fast path passes parallel kernels).
+    to roundoff), and ``product``: ``product(coef, a, b, shape)`` returning
+    ``sum_f coef[f] a[f] b[f]`` zero-padded to ``shape`` (the fast path passes a parallel
+    kernel; default numpy's ``einsum``, unpadded, which ``rfft2`` pads).
 
     Returns
     -------
@@ -67,7 +41,6 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
     """
     from .tensor import _entry_groups
 
-    ops = ops or ArrayOps
     n = len(rows)
     F, h, W = next(iter(signals.values())).shape
     R = kernels.shape[1] // 2
@@ -82,9 +55,9 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
         sfft, fast_len, kw, over = np.fft, _next_smooth, {}, {}
     c0, c1, _ = cols.indices(W)
     # Circular correlation of length N equals the zero-padded linear one at the kept
-    # outputs [a, b) of n samples when no tap of a kept output wraps onto data: taps
+    # outputs [a, b) of m samples when no tap of a kept output wraps onto data: taps
     # past the end must land in the padding (N >= b + R) and taps before the start must
-    # wrap into it (N >= n + R - a).  With the estimator's halo (>= R) this is N = n: the
+    # wrap into it (N >= m + R - a).  With the estimator's halo (>= R) this is N = m: the
     # window of a kept pixel lies inside the band, so no padding is needed at all.
     shape = (fast_len(max(h, h - halo + R, h + R - halo), real=True),
              fast_len(max(W, c1 + R, W + R - c0), real=True))
@@ -108,7 +81,10 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
     keep_cols = slice(c0, c1)
     for (pair, tpow), entries in groups.items():
         coef = wt * tvals.astype(float) ** tpow
-        prod = ops.product(coef, signals[pair[0]], signals[pair[1]], shape)
+        if product is None:
+            prod = np.einsum("f,fhw,fhw->hw", coef, signals[pair[0]], signals[pair[1]])
+        else:
+            prod = product(coef, signals[pair[0]], signals[pair[1]], shape)
         if prod.shape == shape and over:
             # padded already (or needing no padding): the two passes of rfft2 one after
             # the other, so that both run on all workers (scipy.fft's rfft2 measured
@@ -121,10 +97,10 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
         ypass = {}
         for px, py in sorted({(px, py) for *_, px, py in entries}):
             if py not in ypass:
-                ypass[py] = sfft.ifft(ops.scale_rows(FP, KY[py]), axis=0, **kw, **over)
-            full = sfft.irfft(ops.scale_cols(ypass[py], keep_rows, KX[px]), n=shape[1],
-                              axis=1, **kw, **over)
-            ops.place(Jp[plane[((pair, tpow), px, py)]], full, keep_cols)
+                ypass[py] = sfft.ifft(FP * KY[py][:, None], axis=0, **kw, **over)
+            full = sfft.irfft(ypass[py][keep_rows] * KX[px][None, :], n=shape[1], axis=1,
+                              **kw, **over)
+            Jp[plane[((pair, tpow), px, py)]] = full[:, keep_cols]
     return Jp, idx
 
 

@@ -685,7 +685,7 @@ def _lanes_p(Jp, N, idx, perm, i0, k, nq, grows, rank_tol, m_tol, warm, A, L, dl
                 Minv[2, 0, p] = (a10 * a21 - a11 * a20) * inv
                 Minv[2, 1, p] = (a01 * a20 - a00 * a21) * inv
                 Minv[2, 2, p] = (a00 * a11 - a01 * a10) * inv
-        else:
+        elif k == 2:
             for p in range(nl):
                 a00, a01 = Y[nq, 0, p], Y[nq, 1, p]
                 a10, a11 = Y[nq + 1, 0, p], Y[nq + 1, 1, p]
@@ -694,6 +694,10 @@ def _lanes_p(Jp, N, idx, perm, i0, k, nq, grows, rank_tol, m_tol, warm, A, L, dl
                 Minv[0, 1, p] = -a01 * inv
                 Minv[1, 0, p] = -a10 * inv
                 Minv[1, 1, p] = a00 * inv
+        else:
+            # k = 1 (a static 1-D grid: ds_x alone)
+            for p in range(nl):
+                Minv[0, 0, p] = 1.0 / Y[nq, 0, p]
         # Pn = Y Minv; change and size
         for p in range(nl):
             lw[8, p] = 0.0                        # change
@@ -795,7 +799,7 @@ def _lanes_p(Jp, N, idx, perm, i0, k, nq, grows, rank_tol, m_tol, warm, A, L, dl
                 err_out[p] = q + 2.0 * pp * np.cos(np.arccos(rr) / 3.0)
             else:
                 err_out[p] = q
-        else:
+        elif k == 2:
             g00, g10, g11 = G[0, 0, p], G[1, 0, p], G[1, 1, p]
             l00 = np.sqrt(g00)
             l10 = g10 / l00
@@ -810,6 +814,8 @@ def _lanes_p(Jp, N, idx, perm, i0, k, nq, grows, rank_tol, m_tol, warm, A, L, dl
             c11 = (w11 - l10 * c10) / l11
             mean = 0.5 * (c00 + c11)
             err_out[p] = mean + np.sqrt(0.25 * (c00 - c11) ** 2 + c10 * c10)
+        else:
+            err_out[p] = H[0, 0, p] / G[0, 0, p]
         settled[p] = settled[p] and np.isfinite(err_out[p])
     for r in range(n):
         for c in range(k):

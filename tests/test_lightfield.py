@@ -122,6 +122,37 @@ def test_static_light_field_disparity_and_slope():
         estimate(views[None], 96.0, (1.0, 1.0), model="full", sigma=4.0, window=17)
 
 
+@pytest.mark.parametrize("grid", ["2-D", "1-D"])
+def test_static_light_field_fast_path_agrees_with_reference(grid):
+    """From 128^2 pixels on, the fast path's lane solver runs with a null space of one
+    dimension per camera axis: two on a 2-D grid, one (ds_x alone) on a static 1-D grid,
+    the case a past version read and wrote out of bounds on.  Fast against reference on
+    a noisy plane (noise 1e-3, so that the model error is the noise's, not roundoff):
+    1e-6 of each quantity's scale, as tests/test_estimator_properties.py asks of moving
+    scenes.  Noise-free, the fast path's disparity is within 1e-3 px of the truth (the
+    tolerance of the test above, same texture and disparity)."""
+    from gridflow.estimator import estimate
+    from gridflow.estimator.core import EstimatorSettings, _uses_numba
+
+    views, truth = plane_views(n=5, size=160, d0=0.4)
+    pick = (slice(None), slice(None)) if grid == "2-D" else (slice(2, 3), slice(None))
+    vol = views[pick][None]
+    assert _uses_numba(EstimatorSettings(), vol.shape)
+    kw = dict(model="bcc", sigma=4.0, window=17)
+    e = estimate(vol, 160.0, (1.0, 1.0), method="fast", **kw)
+    m = e.interior
+    assert m.sum() > 0.5 * m.size
+    assert np.nanmax(np.abs(e["disparity"][m] - truth[m])) < 1e-3
+    noisy = vol + 1e-3 * np.random.default_rng(1).normal(size=vol.shape)
+    a = estimate(noisy, 160.0, (1.0, 1.0), method="fast", **kw)
+    b = estimate(noisy, 160.0, (1.0, 1.0), method="reference", **kw)
+    scale = {"Z": 400.0, "disparity": 1.0, "Zx": 1.0, "Zy": 1.0,
+             "model_error": float(np.nanmax(b["model_error"]))}
+    for name in a.maps:
+        np.testing.assert_array_equal(np.isnan(a[name]), np.isnan(b[name]))
+        assert np.nanmax(np.abs(a[name] - b[name])) <= 1e-6 * scale[name], name
+
+
 def test_refocusing_reaches_large_disparities():
     """A plane at 2.6 px per view with a fine texture (wavelengths down to ~5 px): the
     views are then shifted by more than the camera-derivative filters can follow, unless

@@ -47,10 +47,10 @@ def _add_estimator_args(p: argparse.ArgumentParser) -> None:
                         "before the suffix")
     g.add_argument("--sigma", type=float, default=None,
                    help="Gaussian sigma, px (default 16; with --shears 2, or 1 with "
-                        "--select occlusion)")
+                        "--select lines or occlusion)")
     g.add_argument("--window", type=int, default=None,
                    help="Gaussian taps (default 65; with --shears 9, or 5 with --select "
-                        "occlusion)")
+                        "lines or occlusion)")
     g.add_argument("--filters", choices=FILTER_NAMES, default="matched5",
                    help="derivative filters (default matched5)")
     g.add_argument("--temporal-radius", type=int, default=None,
@@ -251,7 +251,7 @@ def cmd_estimate(a) -> int:
     if views is None:
         # all views where the occlusion-aware shears use the outer ones, else what the
         # 5-tap camera filters reach
-        views = None if (a.shears is not None and a.select == "occlusion") else 5
+        views = None if (a.shears is not None and a.select != "coarse") else 5
     data = _load_input(a.input, views=views)
     if a.shears is not None:
         check_output(a.output, suffixes=".npz", inputs=[a.input], what="-o")
@@ -583,8 +583,9 @@ def cmd_peers(a) -> int:
         out = []
         for m in DEPTH_METHODS:
             r = run_depth(m, views, gt, **(kw if m.startswith("gridflow_") else {}))
-            used = n if m in ("gridflow_occlusion", "epi_st") else min(5, n)
-            out.append({**r, "views": f"{used}x{used}"})
+            used = (f"{n}x{n}" if m in ("gridflow_occlusion", "epi_st") else
+                    f"{n}+{n}" if m == "gridflow_lines" else f"{min(5, n)}x{min(5, n)}")
+            out.append({**r, "views": used})
         if n > 5:
             # the occlusion-aware shears on the central 5 x 5 alone: what the outer views add
             r = run_depth("gridflow_occlusion", views, gt, grid=5, **kw)
@@ -623,16 +624,19 @@ def build_parser() -> argparse.ArgumentParser:
                                  "light field scene folder (input_Cam000.png ...)")
     p.add_argument("--views", type=_positive_int, default=None,
                    help="HCI scenes: the central VIEWS x VIEWS views to use (odd; default "
-                        "5, what 5-tap camera filters reach; all with --select occlusion)")
+                        "5, what 5-tap camera filters reach; all with --select lines or "
+                        "occlusion)")
     _add_estimator_args(p)
     p.add_argument("--shears", nargs="+", default=None, metavar="MIN MAX",
                    help="light fields of one frame: refocus over the integer disparities "
                         "MIN..MAX (px per view) for disparities beyond about +-1; 'auto': "
                         "an HCI scene's stated range")
-    p.add_argument("--select", choices=("coarse", "occlusion"), default="coarse",
+    p.add_argument("--select", choices=("coarse", "lines", "occlusion"), default="coarse",
                    help="with --shears: each pixel's shear nearest a coarse estimate "
-                        "(default; fine periodic texture) or chosen among camera sub-grids "
-                        "and shifted windows (occlusions; docs/model.md)")
+                        "(default; fine periodic texture), or chosen among camera "
+                        "sub-grids and shifted windows: 1-D ones along the centre row and "
+                        "column ('lines': occlusions and thin structures) or square ones "
+                        "('occlusion'); docs/model.md")
     p.add_argument("-o", "--output", required=True, help="output estimate .npz")
     p.set_defaults(func=cmd_estimate)
 

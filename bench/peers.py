@@ -15,6 +15,8 @@ in pixels per camera step with the HCI sign.
   sub-grids and shifted windows by a guided aggregation of the model error
   (``select="occlusion"``), on all views (5 x 5 sub-grids at the centre, edges and
   corners of a larger grid);
+* ``gridflow_lines``: as ``gridflow_occlusion`` with 1-D camera sub-grids along the
+  centre row and column (``select="lines"``), on all views of that row and column;
 * ``epi_st``: the EPI structure tensor of Wanner and Goldluecke (CVPR 2012; TPAMI 2014),
   written here: orientation of the horizontal and vertical epipolar-plane images from a
   Gaussian-smoothed 2-D structure tensor, the more coherent of the two kept per pixel.
@@ -169,18 +171,23 @@ def _gridflow_refocus(views, grid: int | None = 5, shifts=(-3, -2, -1, 0, 1, 2, 
     return res["disparity"], res["confidence"]
 
 
-def _gridflow_occlusion(views, grid: int | None = None, shifts=(-3, -2, -1, 0, 1, 2, 3)):
+def _gridflow_occlusion(views, grid: int | None = None, shifts=(-3, -2, -1, 0, 1, 2, 3),
+                        select: str = "occlusion"):
     from gridflow.estimator.lightfield import estimate_refocused
 
-    res = estimate_refocused(_central(views, grid), shifts=shifts, select="occlusion",
-                             fill=True)
+    res = estimate_refocused(_central(views, grid), shifts=shifts, select=select, fill=True)
     return res["disparity"], res["confidence"]
+
+
+def _gridflow_lines(views, grid: int | None = None, shifts=(-3, -2, -1, 0, 1, 2, 3)):
+    return _gridflow_occlusion(views, grid, shifts, select="lines")
 
 
 DEPTH_METHODS = {
     "gridflow": _gridflow,
     "gridflow_refocus": _gridflow_refocus,
     "gridflow_occlusion": _gridflow_occlusion,
+    "gridflow_lines": _gridflow_lines,
     "epi_st": lambda views: epi_structure_tensor(views),
 }
 

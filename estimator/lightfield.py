@@ -7,7 +7,7 @@ about +-1 px per view.  Beyond that this field shears (refocuses) the light fiel
 disparity ``s`` to disparity 0, so the estimator sees the residual ``d - s`` only.
 :func:`estimate_refocused` does so for a set of integer shears (integer shifts move
 pixels exactly, with no interpolation) and chooses, per pixel, one shear's estimate
-(admissible: within half a pixel of its shear).  Two ways to choose:
+(admissible: within half a pixel of its shear).  Three ways to choose:
 
 ``select="coarse"``
     The shear nearest to a coarse disparity, from the same estimator on the light field
@@ -26,8 +26,19 @@ pixels exactly, with no interpolation) and chooses, per pixel, one shear's estim
     of an edge) fits best, i.e. has the smallest model error.  Across shears, the log
     model errors are aggregated by a guided filter (He, Sun and Tang, ECCV 2010) on the
     centre view, so each pixel pools the costs of neighbours of its own brightness,
-    and the smallest wins.  ``gridflow peers`` scores both side by side
-    (``results/peers_depth.csv`` for the rendered cube).
+    and the smallest wins.
+``select="lines"``
+    As ``"occlusion"``, with 1-D camera sub-grids instead of square ones: segments of
+    ``subgrid`` views along the centre row and the centre column of the grid (on 9 x 9
+    views: three of each, 17 views).  A row of cameras moves a point along x only, so
+    an occluding edge running along x hides nothing from it (and likewise a column for
+    edges along y): thin structures between foreground stripes, where every square
+    sub-grid has views in which the gap is covered, keep their own disparity.  This is
+    the light-field counterpart of estimating on horizontal and vertical epipolar-plane
+    images and keeping the more confident (Wanner and Goldluecke).
+
+``gridflow peers`` scores them side by side (``results/peers_depth.csv`` for the
+rendered cube).
 """
 
 from __future__ import annotations
@@ -38,10 +49,10 @@ from .core import InputError, estimate
 
 __all__ = ["shear", "estimate_refocused", "SELECT_DEFAULTS"]
 
-# (sigma px, window taps) of each shear choice when not given: the occlusion-aware choice
-# works with small windows (its shifted windows and sub-grids handle the edges), the
+# (sigma px, window taps) of each shear choice when not given: the occlusion-aware choices
+# work with small windows (their shifted windows and sub-grids handle the edges), the
 # coarse one keeps the estimator's usual light-field window
-SELECT_DEFAULTS = {"occlusion": (1.0, 5), "coarse": (2.0, 9)}
+SELECT_DEFAULTS = {"lines": (1.0, 5), "occlusion": (1.0, 5), "coarse": (2.0, 9)}
 
 
 def shear(views: np.ndarray, s: int) -> np.ndarray:
@@ -123,17 +134,18 @@ def _guided(p: np.ndarray, guide: np.ndarray, r: int, eps: float) -> np.ndarray:
     return _box(a, r) * guide + _box(b, r)
 
 
-def _admissible(e, s: int, m: int):
+def _admissible(disp, err, interior, s: int, m: int):
     """The estimate at shear ``s`` where admissible (finite, within half a pixel of the
-    shear, its window clear of the ``m`` px of repeated edge the shear moved in)."""
-    H, W = e.interior.shape
+    shear, its window clear of the ``m`` px of repeated edge the shear moved in); maps of
+    shape (H, W): the estimator's ``disparity``, ``model_error`` and ``interior``."""
+    H, W = interior.shape
     clear = np.zeros((H, W), dtype=bool)
     clear[m:H - m, m:W - m] = True
-    clear &= (np.roll(np.roll(e.interior, m, 0), m, 1)
-              & np.roll(np.roll(e.interior, -m, 0), -m, 1))
-    d = s + e["disparity"]
-    ok = clear & np.isfinite(d) & np.isfinite(e["model_error"]) & (np.abs(d - s) <= 0.5)
-    return np.where(ok, d, np.nan), np.where(ok, e["model_error"], np.inf)
+    clear &= (np.roll(np.roll(interior, m, 0), m, 1)
+              & np.roll(np.roll(interior, -m, 0), -m, 1))
+    d = s + disp
+    ok = clear & np.isfinite(d) & np.isfinite(err) & (np.abs(d - s) <= 0.5)
+    return np.where(ok, d, np.nan), np.where(ok, err, np.inf)
 
 
 def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
@@ -153,18 +165,23 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         The shears tried; they should cover the scene's disparity range.
     sigma, window, filters
         Estimator settings (:class:`estimator.EstimatorSettings`); defaults
-        ``SELECT_DEFAULTS[select]``: 1 px and 5 taps for ``"occlusion"``, 2 px and 9 taps
-        for ``"coarse"``.
-    select : {"occlusion", "coarse"}
+        ``SELECT_DEFAULTS[select]``: 1 px and 5 taps for ``"lines"`` and
+        ``"occlusion"``, 2 px and 9 taps for ``"coarse"``.
+    select : {"lines", "occlusion", "coarse"}
         How each pixel's estimate is chosen among the shears (module docstring):
-        ``"occlusion"`` (sub-grids, shifted windows and a guided cost aggregation; for
-        scenes with occlusions) or ``"coarse"`` (the shear nearest to a coarse
-        disparity; for fine periodic texture, where a wrong shear can alias).
+        ``"lines"`` (1-D camera sub-grids along the centre row and column, shifted
+        windows and a guided cost aggregation; for scenes with occlusions and thin
+        structures), ``"occlusion"`` (the same with square sub-grids) or ``"coarse"``
+        (the shear nearest to a coarse disparity; for fine periodic texture, where a
+        wrong shear can alias).
     subgrid : int
-        ``"occlusion"``: odd size of the camera sub-grids (at the centre, edges and
-        corners of the grid: nine of them on a 9 x 9 grid, one on a 5 x 5).
+        ``"lines"`` and ``"occlusion"``: odd number of views across a camera sub-grid
+        (square ones at the centre, edges and corners of the grid: nine of them on a
+        9 x 9 grid, one on a 5 x 5; lines of that many views at the centre and both
+        ends of the centre row and column).
     aggregate : int
-        ``"occlusion"``: radius (px) of the guided filter that aggregates the costs.
+        ``"lines"`` and ``"occlusion"``: radius (px) of the guided filter that
+        aggregates the costs.
     coarse_sigma : float
         ``"coarse"``: low-pass of the coarse pass, px; its window is twice ``sigma``.
     fill : bool
@@ -187,9 +204,9 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     if not shifts or len(set(shifts)) != len(shifts):
         raise InputError(f"shifts must be distinct integers, got {shifts}")
     if select not in SELECT_DEFAULTS:
-        raise InputError(f"select must be 'occlusion' or 'coarse', got {select!r}")
+        raise InputError(f"select must be one of {sorted(SELECT_DEFAULTS)}, got {select!r}")
     n = v.shape[0]
-    if select == "occlusion" and (subgrid % 2 == 0 or not 3 <= subgrid <= n):
+    if select != "coarse" and (subgrid % 2 == 0 or not 3 <= subgrid <= n):
         raise InputError(f"subgrid must be odd, at least 3 and at most the grid's {n}, "
                          f"got {subgrid}")
     sigma = SELECT_DEFAULTS[select][0] if sigma is None else sigma
@@ -199,7 +216,8 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     if select == "coarse":
         out = _select_coarse(v, lo, sigma, window, filters, coarse_sigma)
     else:
-        out = _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate)
+        out = _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate,
+                                lines=select == "lines")
     disp, err = out["disparity"], out["model_error"]
     valid = np.isfinite(disp)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -223,28 +241,56 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     return res
 
 
-def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate) -> dict:
+def _subgrid_estimates(sv, subgrid, sigma, window, filters, lines):
+    """The estimator on each camera sub-grid of the sheared views ``sv`` (n, n, H, W).
+
+    ``lines=False``: the ``subgrid`` x ``subgrid`` sub-grids at the centre, edges and
+    corners of the grid.  ``lines=True``: 1-D sub-grids of ``subgrid`` views along the
+    centre row and the centre column (at the centre and both ends of each); a column is
+    estimated as a row of the transposed images (the HCI sign carries over: a point
+    appears in view ``r`` of the column at ``y - d (r - cc)``).
+
+    Yields ``(disparity, model_error, interior)`` maps of shape (H, W) at the shear.
+    """
+    n = sv.shape[0]
+    W = sv.shape[-1]
+    h = subgrid // 2
+    kw = dict(model="bcc", sigma=sigma, window=window, filters=filters)
+    if not lines:
+        for rc, cc in _subgrid_centres(n, subgrid):
+            sub = np.ascontiguousarray(sv[rc - h:rc + h + 1, cc - h:cc + h + 1])[None]
+            e = estimate(sub, float(W), (1.0, 1.0), **kw)
+            yield e["disparity"], e["model_error"], e.interior
+        return
+    cc = n // 2
+    for c in sorted({h, cc, n - 1 - h}):
+        row = np.ascontiguousarray(sv[cc:cc + 1, c - h:c + h + 1])[None]
+        e = estimate(row, float(W), (1.0, 1.0), **kw)
+        yield e["disparity"], e["model_error"], e.interior
+        col = np.ascontiguousarray(sv[c - h:c + h + 1, cc].transpose(0, 2, 1))[None, None]
+        e = estimate(col, float(W), (1.0, 1.0), **kw)
+        yield e["disparity"].T, e["model_error"].T, e.interior.T
+
+
+def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate, lines) -> dict:
     """Per shear, the best of the sub-grids and shifted windows; across shears, the
     smallest aggregated cost."""
     n = v.shape[0]
     H, W = v.shape[-2:]
-    h = subgrid // 2
     R = window // 2
-    centres = _subgrid_centres(n, subgrid)
     rows, cols = np.indices((H, W))
     D = np.full((lo.size, H, W), np.nan)
     E = np.full((lo.size, H, W), np.inf)
     for k, s in enumerate(lo):
         sv = shear(v, int(s))
         m = abs(int(s)) * (n // 2)
-        for rc, cc in centres:
-            # a sub-grid off the centre sees the centre's point within |d - s| * (its
-            # offset) <= 1 px of the same pixel after the shear: the views on one side of
-            # an occluding edge, where the full grid mixes two surfaces
-            sub = np.ascontiguousarray(sv[rc - h:rc + h + 1, cc - h:cc + h + 1])[None]
-            e = estimate(sub, float(W), (1.0, 1.0), model="bcc", sigma=sigma,
-                         window=window, filters=filters)
-            d, err = _admissible(e, int(s), m)
+        # a sub-grid off the centre sees the centre's point within |d - s| * (its offset)
+        # <= 1 px of the same pixel after the shear: the views on one side of an
+        # occluding edge, where the full grid mixes two surfaces.  A 1-D sub-grid along
+        # an edge's direction sees no occlusion at all (thin structures)
+        for disp, err_s, interior in _subgrid_estimates(sv, subgrid, sigma, window, filters,
+                                                        lines):
+            d, err = _admissible(disp, err_s, interior, int(s), m)
             # shifted windows: a pixel may take the estimate of a window that still
             # covers it (offset up to the window's radius), the one that fits best;
             # near an edge that is a window on the pixel's own side of it
@@ -299,7 +345,8 @@ def _select_coarse(v, lo, sigma, window, filters, coarse_sigma) -> dict:
     for k, s in enumerate(lo):
         e = estimate(shear(v, int(s))[None], float(W), (1.0, 1.0), model="bcc", sigma=sigma,
                      window=window, filters=filters)
-        D[k], E[k] = _admissible(e, int(s), abs(int(s)) * (n // 2))
+        D[k], E[k] = _admissible(e["disparity"], e["model_error"], e.interior, int(s),
+                                 abs(int(s)) * (n // 2))
     # the shear nearest to the coarse disparity where it is admissible; elsewhere the
     # admissible neighbouring shear (one step either side) with the smaller model error;
     # shears further away are not considered: with fine texture an aliased shear can fit

@@ -588,8 +588,9 @@ def cmd_peers(a) -> int:
             out.append({**r, "views": used})
         if n > 5:
             # the occlusion-aware shears on the central 5 x 5 alone: what the outer views add
-            r = run_depth("gridflow_occlusion", views, gt, grid=5, **kw)
-            out.append({**r, "views": "5x5"})
+            for m in ("gridflow_occlusion", "gridflow_lines"):
+                r = run_depth(m, views, gt, grid=5, **kw)
+                out.append({**r, "views": "5x5" if m == "gridflow_occlusion" else "5+5"})
         t = pd.DataFrame([{k: v for k, v in r.items() if k not in ("disparity", "confidence")}
                           for r in out])
         print(f"{a.hci} ({n}x{n} views{'; shears ' + str(list(kw['shifts'])) if kw else ''}):")

@@ -26,9 +26,10 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
     the columns to keep (the interior), so that no copy is needed afterwards, and
     ``backend``: ``"scipy"`` (multithreaded ``scipy.fft``) or ``"numpy"`` (``numpy.fft``,
     for small images: it spares the ~0.1 s import of scipy.fft and gives the same result
-    to roundoff), and ``product``: ``product(coef, a, b, shape)`` returning
-    ``sum_f coef[f] a[f] b[f]`` zero-padded to ``shape`` (the fast path passes a parallel
-    kernel; default numpy's ``einsum``, unpadded, which ``rfft2`` pads).
+    to roundoff), and ``product``: ``product(coef, a, b, shape, out)`` returning
+    ``sum_f coef[f] a[f] b[f]`` zero-padded to ``shape``, written into ``out`` (an array
+    of that shape, reused for every product) where given (the fast path passes a
+    parallel kernel; default numpy's ``einsum``, unpadded, which ``rfft2`` pads).
 
     Returns
     -------
@@ -79,12 +80,17 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
     Jp = np.empty((len(plane), out_rows, c1 - c0))
     keep_rows = slice(halo, h - halo)
     keep_cols = slice(c0, c1)
+    # work arrays reused for every product: fresh arrays of a few MB each cost their page
+    # faults every time (hundreds of them per band; measured 0.03-0.05 s at 512^2)
+    pbuf = np.empty(shape) if product is not None else None
+    ybufs = {}
+    xbuf = np.empty((out_rows, shape[1] // 2 + 1), dtype=complex)
     for (pair, tpow), entries in groups.items():
         coef = wt * tvals.astype(float) ** tpow
         if product is None:
             prod = np.einsum("f,fhw,fhw->hw", coef, signals[pair[0]], signals[pair[1]])
         else:
-            prod = product(coef, signals[pair[0]], signals[pair[1]], shape)
+            prod = product(coef, signals[pair[0]], signals[pair[1]], shape, pbuf)
         if prod.shape == shape and over:
             # padded already (or needing no padding): the two passes of rfft2 one after
             # the other, so that both run on all workers (scipy.fft's rfft2 measured
@@ -97,9 +103,12 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
         ypass = {}
         for px, py in sorted({(px, py) for *_, px, py in entries}):
             if py not in ypass:
-                ypass[py] = sfft.ifft(FP * KY[py][:, None], axis=0, **kw, **over)
-            full = sfft.irfft(ypass[py][keep_rows] * KX[px][None, :], n=shape[1], axis=1,
-                              **kw, **over)
+                buf = ybufs.setdefault(py, np.empty_like(FP))
+                # scipy.fft transforms complex input in place with overwrite_x
+                ypass[py] = sfft.ifft(np.multiply(FP, KY[py][:, None], out=buf), axis=0,
+                                      **kw, **over)
+            np.multiply(ypass[py][keep_rows], KX[px][None, :], out=xbuf)
+            full = sfft.irfft(xbuf, n=shape[1], axis=1, **kw, **over)
             Jp[plane[((pair, tpow), px, py)]] = full[:, keep_cols]
     return Jp, idx
 

@@ -529,10 +529,11 @@ P_ITERS = 5
 _TILE = 256
 # Lane blocks skipped after one in which no lane settled (128 pixels).
 _SKIP_BLOCKS = 4
-# 1e-11: on the 512^2 benchmark volume it settles the blocks in 2.04 steps on average
-# instead of 3.02 at 1e-13 (the solver 17 % faster), and moves P by at most 9e-11 of
-# max|P| (the model error by 2e-14), far inside the fast path's stated agreement with
-# the reference (1e-6 of each quantity's scale; tests/test_estimator_properties.py).
+# 1e-11: on the 512^2 benchmark volume it settled the blocks (then of 8 pixels) in 2.04
+# steps on average instead of 3.02 at 1e-13 (the solver 17 % faster), and moves P by at
+# most 9e-11 of max|P| (the model error by 2e-14), far inside the fast path's stated
+# agreement with the reference (1e-6 of each quantity's scale;
+# tests/test_estimator_properties.py).
 _P_TOL = 1e-11
 _FM = {"contract", "arcp"}
 

@@ -517,8 +517,8 @@ def _finish(X, M, MtM, Minv, L, y, k, nq, perm, grows, i, P, g):
 # this constant: LLVM fully unrolls loops of a constant trip count, and numba leaves its
 # SLP vectoriser off, so unrolled lanes ran as scalar code; a loop of run-time length is
 # vectorised by the loop vectoriser.  Measured on the 512^2 benchmark tensor (full
-# model, 2 threads, one process): 8 constant lanes 0.248 s, 16 run-time lanes 0.195 s,
-# 32 0.171 s, 64 0.165 s (64 no better in a second run).
+# model, 2 threads, best of 12 in one process): 8 constant lanes 0.248 s, 16 run-time
+# lanes 0.195 s, 32 0.171 s; in another run 8 constant 0.259 s, 32 0.181 s, 64 0.165 s.
 _LANES = 32
 # Steps of the parameter-vector iteration before a pixel goes to the scalar path, and
 # its stopping rule: the error left after the last step, estimated as change * rho with

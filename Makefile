@@ -32,9 +32,8 @@ $(STAMP): pyproject.toml requirements.lock
 # numba compiles the estimator's kernels on first use (20-40 s) and caches them on disk;
 # paying that here, with a message, keeps the first estimate from a long silence.
 KERNELS := $(VENV)/.kernels
-$(KERNELS): estimator/_fast.py | $(STAMP)
-	@$(PY) -c "import logging; logging.basicConfig(level=logging.INFO, format='gridflow: %(message)s'); \
-	  from gridflow.estimator._fast import compile_kernels; compile_kernels()"
+$(KERNELS): estimator/_kernels.py estimator/_solver.py | $(STAMP)
+	@$(PY) -m gridflow.estimator.warmup
 	@touch $@
 
 env: $(STAMP) $(KERNELS)

@@ -421,9 +421,12 @@ def run_point(spec: SweepSpec, point: Point, clean=None) -> pd.DataFrame:
     for model in spec.models:
         e = res[model]
         f = e.settings["filters"]
-        est = _diff_json(e.settings, {**EstimatorSettings().__dict__, "model": model,
-                                      "filters_xy": f, "filters_sx": f, "filters_sy": f,
-                                      "filters_t": f})
+        # the settings the estimate reports beyond the spec's own: the model, the filters
+        # chosen per axis (the spec's where it had the samples) and the backend that ran
+        # (one of the same method's implementations) are not settings of the sweep
+        est = _diff_json({k: v for k, v in e.settings.items() if k != "backend"},
+                         {**EstimatorSettings().__dict__, "model": model, "filters_xy": f,
+                          "filters_sx": f, "filters_sy": f, "filters_t": f})
         for r in evaluate(e.maps, truth, e.interior):
             rows.append({"sweep": spec.name, "param": point.param, "value": point.value,
                          "noise": point.noise, "seed": point.seed, "model": model, **r,

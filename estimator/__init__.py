@@ -1,24 +1,37 @@
 """Structure-tensor TLS estimation of depth, slopes, 3-D motion and brightness change
 from a camera-grid image sequence (Schuchert & Scharr, DAGM 2007, Sec. 3).
 
-The names below are imported on first use (PEP 562), so that importing a light
+The public interface is :func:`estimate` (one model), :func:`estimate_models` (several
+sharing one structure tensor), the :class:`Estimate` they return, the
+:class:`EstimatorSettings` they accept and the choices: :data:`MODELS` (brightness
+models), :data:`MOTIONS` (motion models), :data:`METHODS`, :data:`COMBINE`,
+:data:`FILTER_NAMES`.  The parts (``docs/architecture.md``): :mod:`.settings`,
+:mod:`.models`, :mod:`.filters`, :mod:`.signals`, :mod:`.tensor`, :mod:`.spectral`,
+:mod:`.nullspace`, :mod:`.disentangle`, :mod:`.backends` (with the numba kernels in
+:mod:`._kernels` and :mod:`._solver`), :mod:`.driver`, :mod:`.lightfield`.
+
+The driver's names are imported on first use (PEP 562), so that importing a light
 submodule (``gridflow.estimator.filters``, ``.models``) does not pay for scipy.
 """
 
-from .models import MODELS
+from .filters import FILTER_NAMES
+from .models import MODELS, MOTIONS
+from .result import Estimate
+from .settings import COMBINE, DEFAULTS, METHODS, EstimatorSettings, InputError
 
-__all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models", "MODELS"]
+__all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
+           "MODELS", "MOTIONS", "METHODS", "COMBINE", "FILTER_NAMES", "DEFAULTS"]
 
-_FROM_CORE = {"Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models"}
+_FROM_DRIVER = {"estimate", "estimate_models"}
 
 
 def __getattr__(name):
-    if name in _FROM_CORE:
-        from . import core
+    if name in _FROM_DRIVER:
+        from . import driver
 
-        return getattr(core, name)
+        return getattr(driver, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def __dir__():
-    return sorted(set(globals()) | _FROM_CORE)
+    return sorted(set(globals()) | _FROM_DRIVER)

@@ -45,14 +45,25 @@ from __future__ import annotations
 
 import numpy as np
 
-from .core import InputError, estimate
+from .driver import estimate
+from .settings import InputError
 
-__all__ = ["shear", "estimate_refocused", "SELECT_DEFAULTS"]
+__all__ = ["shear", "estimate_refocused", "SELECT_DEFAULTS", "SELECTS", "stated_shears"]
 
 # (sigma px, window taps) of each shear choice when not given: the occlusion-aware choices
 # work with small windows (their shifted windows and sub-grids handle the edges), the
 # coarse one keeps the estimator's usual light-field window
 SELECT_DEFAULTS = {"lines": (1.0, 5), "occlusion": (1.0, 5), "coarse": (2.0, 9)}
+# the ways to choose a pixel's shear, the default first
+SELECTS = ("coarse", "lines", "occlusion")
+
+
+def stated_shears(disp_range) -> tuple[int, ...] | None:
+    """The integer shears covering a stated disparity range ``(min, max)`` (px per view;
+    an HCI scene's ``parameters.cfg`` states one), or None where none is stated."""
+    if not disp_range:
+        return None
+    return tuple(range(int(np.floor(disp_range[0])), int(np.ceil(disp_range[1])) + 1))
 
 
 def shear(views: np.ndarray, s: int) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""Data vector d and parameter vector p of Eq. 19 (rebuilt in docs/model.md).
+"""Data vector d and parameter vector p of Eq. 19 (rebuilt in docs/model.md), and the
+models as a brightness model combined with a motion model.
 
 Each data row is a base signal times a temporal power and a spatial monomial:
 
@@ -22,16 +23,21 @@ Each data row is a base signal times a temporal power and a spatial monomial:
  15    I t Δy        2 b2y dt                              (I, 1, Δy)
 =====  ============  ====================================  ===========
 
-BCC uses rows 1-9, HF rows 1-10 and 13, the full model all 15.  A 1-D camera grid
-(``ds_y = 0``) drops rows 5 and 8; a static light field (one frame) drops row 9 and has
-no ``dt`` column.
+A model is a **motion model** (how the surface patch moves: which geometric rows the data
+vector has and how their parameters turn into depth, slopes and velocity) combined with
+a **brightness model** (how its brightness changes: which rows of ``I`` are added).  The
+paper's motion model is ``translation``: a patch moving without deforming, rows 1-9.  The
+brightness models are BCC (no rows), HF (rows 10 and 13) and the full model (rows
+10-15).  A 1-D camera grid (``ds_y = 0``) drops rows 5 and 8; a static light field (one
+frame) drops row 9 and has no ``dt`` column.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["ROWS", "MODELS", "Model", "get_model"]
+__all__ = ["ROWS", "ALL_ROWS", "MODELS", "MOTIONS", "BRIGHTNESS_OUTPUTS", "Model",
+           "get_model", "covering_rows"]
 
 # name -> (base signal, temporal power, spatial monomial)
 ROWS: dict[str, tuple[str, int, str]] = {
@@ -44,40 +50,54 @@ ROWS: dict[str, tuple[str, int, str]] = {
 }
 ALL_ROWS = tuple(ROWS)
 
-_GEOMETRY = ("Ix", "Iy", "IxDx", "IxDy", "IyDx", "IyDy", "Isx", "Isy", "It")
-_ROWS_2D = {
-    "bcc": _GEOMETRY,
-    "hf": _GEOMETRY + ("I", "tI"),
-    "full": ALL_ROWS,
+# Motion models: the geometric rows of d (the fixed rows I_sx, I_sy, I_t included) and
+# the quantities their parameters give.
+_MOTION_ROWS = {
+    "translation": ("Ix", "Iy", "IxDx", "IxDy", "IyDx", "IyDy", "Isx", "Isy", "It"),
 }
-MODELS = tuple(_ROWS_2D)
+_MOTION_OUTPUTS = {
+    "translation": ("Ux", "Uy", "Uz"),
+}
+MOTIONS = tuple(_MOTION_ROWS)
 
-# Quantities each model estimates (besides Z, Zx, Zy, Ux, Uy, Uz and model_error).
+# Brightness models: the rows of I they add, and the quantities they estimate.
+_BRIGHTNESS_ROWS = {
+    "bcc": (),
+    "hf": ("I", "tI"),
+    "full": ("I", "IDx", "IDy", "tI", "tIDx", "tIDy"),
+}
 BRIGHTNESS_OUTPUTS = {
     "bcc": (),
     "hf": ("a1", "a2"),
     "full": ("a1", "a2", "a1x", "a1y", "a2x", "a2y"),
 }
+MODELS = tuple(_BRIGHTNESS_ROWS)
 
 
 @dataclass(frozen=True)
 class Model:
-    """A brightness model on a given camera-grid dimensionality.
+    """A brightness model combined with a motion model on a camera grid.
 
     Attributes
     ----------
     name : {"bcc", "hf", "full"}
+        The brightness model.
     rows : tuple of str
         Data rows in order (keys of :data:`ROWS`).
     grid_dims : {1, 2}
         2 for a 2-D camera grid (null space of dimension 3), 1 for a horizontal 1-D grid
         (dimension 2).
+    static : bool
+        A light field of one frame: no time axis, no motion, no brightness change.
+    motion : {"translation"}
+        The motion model (:data:`MOTIONS`).
     """
 
     name: str
     rows: tuple[str, ...]
     grid_dims: int
     static: bool = False
+    motion: str = "translation"
 
     @property
     def n(self) -> int:
@@ -99,22 +119,28 @@ class Model:
 
     @property
     def outputs(self) -> tuple[str, ...]:
+        """The quantities estimated, besides ``model_error``."""
         if self.static:
             return ("Z", "Zx", "Zy", "disparity")
-        return ("Z", "Zx", "Zy", "disparity", "Ux", "Uy", "Uz") + BRIGHTNESS_OUTPUTS[self.name]
+        return (("Z", "Zx", "Zy", "disparity") + _MOTION_OUTPUTS[self.motion]
+                + BRIGHTNESS_OUTPUTS[self.name])
 
 
-def get_model(name: str, grid_dims: int = 2, static: bool = False) -> Model:
-    """Return the model ``name`` for a ``grid_dims``-dimensional camera grid.
+def get_model(name: str, grid_dims: int = 2, static: bool = False,
+              motion: str = "translation") -> Model:
+    """The brightness model ``name`` with the motion model ``motion`` on a
+    ``grid_dims``-dimensional camera grid.
 
     ``static``: a light field of one frame.  Only brightness constancy across the views
     applies (``bcc``); the rows are the geometric ones without ``I_t``, and the null space
     has one dimension per camera axis."""
-    if name not in _ROWS_2D:
+    if name not in _BRIGHTNESS_ROWS:
         raise ValueError(f"unknown model {name!r}; expected one of {MODELS}")
+    if motion not in _MOTION_ROWS:
+        raise ValueError(f"unknown motion model {motion!r}; expected one of {MOTIONS}")
     if grid_dims not in (1, 2):
         raise ValueError(f"grid_dims must be 1 or 2, got {grid_dims}")
-    rows = _ROWS_2D[name]
+    rows = _MOTION_ROWS[motion] + _BRIGHTNESS_ROWS[name]
     if static:
         if name != "bcc":
             raise ValueError(f"model {name!r} needs a time axis (brightness change over "
@@ -122,4 +148,11 @@ def get_model(name: str, grid_dims: int = 2, static: bool = False) -> Model:
         rows = tuple(r for r in rows if r != "It")
     if grid_dims == 1:
         rows = tuple(r for r in rows if r not in ("IyDx", "Isy"))
-    return Model(name, rows, grid_dims, static)
+    return Model(name, rows, grid_dims, static, motion)
+
+
+def covering_rows(models) -> tuple[str, ...]:
+    """The rows of every model in ``models``, in the order of :data:`ROWS`: the tensor
+    computed once for all of them (each model's J is a sub-block of it)."""
+    used = {r for m in models for r in m.rows}
+    return tuple(r for r in ALL_ROWS if r in used)

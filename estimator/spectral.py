@@ -15,21 +15,30 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["structure_tensor_fft", "unpack"]
+from .tensor import entry_groups
+
+__all__ = ["structure_tensor_fft"]
 
 
-def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), workers=None,
-                         backend: str = "scipy", product=None):
+def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), *,
+                         fft: str = "scipy", workers: int | None = None, product=None):
     """Packed structure tensor of a band via FFT.
 
-    Parameters and meaning as :func:`estimator.tensor.structure_tensor`, plus ``cols``:
-    the columns to keep (the interior), so that no copy is needed afterwards, and
-    ``backend``: ``"scipy"`` (multithreaded ``scipy.fft``) or ``"numpy"`` (``numpy.fft``,
-    for small images: it spares the ~0.1 s import of scipy.fft and gives the same result
-    to roundoff), and ``product``: ``product(coef, a, b, shape, out)`` returning
-    ``sum_f coef[f] a[f] b[f]`` zero-padded to ``shape``, written into ``out`` (an array
-    of that shape, reused for every product) where given (the fast path passes a
-    parallel kernel; default numpy's ``einsum``, unpadded, which ``rfft2`` pads).
+    Parameters and meaning as :func:`estimator.tensor.structure_tensor`, plus
+
+    cols : slice
+        The columns to keep (the interior), so that no copy is needed afterwards.
+    fft : {"scipy", "numpy"}
+        ``scipy.fft`` on ``workers`` threads (default all cores), or ``numpy.fft`` (for
+        small images: it spares the ~0.1 s import of scipy.fft and gives the same result
+        to roundoff).
+    workers : int, optional
+    product : callable, optional
+        The frame-weighted products of base signals: ``product(coef, a, b, shape, out)``
+        returns ``sum_f coef[f] a[f] b[f]`` zero-padded to ``shape``, written into
+        ``out`` (an array of that shape, reused for every product).  Default numpy's
+        ``einsum``, unpadded, which ``rfft2`` pads; the numba backend passes its
+        parallel kernel (:func:`estimator._kernels.weighted_product`).
 
     Returns
     -------
@@ -40,13 +49,11 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
     idx : ndarray of int, shape (n, n)
         Entry (a, b) of J is plane ``idx[a, b]``.
     """
-    from .tensor import _entry_groups
-
     n = len(rows)
     F, h, W = next(iter(signals.values())).shape
     R = kernels.shape[1] // 2
     wt = np.full(F, 1.0 / F)
-    if backend == "scipy":
+    if fft == "scipy":
         import scipy.fft as sfft
 
         fast_len = sfft.next_fast_len
@@ -70,7 +77,7 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
     ky[:, :2 * R + 1] = kernels[:, ::-1]
     KX = sfft.rfft(np.roll(kx, -R, axis=1), axis=1)
     KY = sfft.fft(np.roll(ky, -R, axis=1), axis=1)
-    groups = _entry_groups(rows)
+    groups = entry_groups(rows)
     idx = np.empty((n, n), dtype=np.int64)
     plane = {}
     for key, entries in groups.items():
@@ -125,20 +132,3 @@ def _next_smooth(n: int, real: bool = True) -> int:
         if k == 1:
             return m
         m += 1
-
-
-def unpack(Jp: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """Full matrices from packed planes.
-
-    Parameters
-    ----------
-    Jp : ndarray, shape (E, N)
-    idx : ndarray of int, shape (n, n)
-        Plane of entry (a, b), e.g. a sub-block of the index
-        :func:`structure_tensor_fft` returns.
-
-    Returns
-    -------
-    ndarray, shape (N, n, n)
-    """
-    return np.ascontiguousarray(np.moveaxis(Jp[idx], -1, 0))

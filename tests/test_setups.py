@@ -7,7 +7,7 @@ import pytest
 from gridflow.bench.setups import SETUPS, get_setup
 from gridflow.bench.sweep import SpecError, SweepSpec, run_point
 from gridflow.estimator.models import get_model
-from gridflow.estimator.solve import disentangle
+from gridflow.estimator.disentangle import disentangle
 from gridflow.generators import SinusoidParams, make_sinusoid
 
 SMALL = {"height": 48, "width": 48, "frames": 7, "grid": [3, 3]}

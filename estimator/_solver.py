@@ -1,253 +1,74 @@
-"""Numba kernels of the fast path: input scan, camera sums and the null-space solver.
+"""The fast path's null-space solver (numba): the parameter vectors of every pixel of a
+packed tensor.
 
-The structure tensor itself is computed by FFT in :mod:`estimator.spectral` (scipy only).
+The parameter vectors ``P = E M^-1`` do not depend on the basis of the null space, so
+they are iterated themselves (:func:`_lanes_p`): ``P <- (J + δI)^-1 P`` with
+``δ = RIDGE trace J`` (the reference path's ridge, :data:`estimator.nullspace.RIDGE`),
+renormalised so that the fixed rows are the unit matrix, from the least-squares start or
+the lane's previous pixel, until the estimated error left is below ``_P_TOL`` (no
+orthonormalisation, no Rayleigh-Ritz step).  Pixels go through in blocks of ``_LANES``
+with the pixel as the inner loop, from tiles copied out of the packed planes (parallel
+over chunks).  The reference path's checks are made by sufficient tests (see
+:func:`_lanes_p`); a pixel they do not settle goes to the exact scalar path
+(:func:`_pixel`: inverse subspace iteration with a Rayleigh-Ritz step, up to
+``MAX_ITER``, then LAPACK's ``eigh``).  Measured on 512x512 sinusoids: HF and full settle
+every pixel in the lanes, noise-free, with σ_n = 0.025 and under brightness change; where
+a model has broken down (BCC under brightness change) every pixel takes the scalar path,
+and after a block that settles nothing the lanes are skipped for ``_SKIP_BLOCKS``.  The
+weights ``(J_qq + δI)^-1_rr`` come from the same Cholesky factor (rows ordered so that
+the fixed rows are last).
 
-Input scan (:func:`scan_volume`), camera sums (:func:`camera_sums`), spatial filtering
-(:func:`spatial_filter`), the FFT tensor's products (:func:`weighted_product`)
-    One parallel pass each: the count of non-finite values with max |V|, the weighted
-    sums over the camera taps that :func:`estimator.tensor.camera_time_signals` needs,
-    the separable 5-tap x/y filtering of :func:`estimator.tensor.spatial_signals`, and
-    the frame-weighted products of :func:`estimator.spectral.structure_tensor_fft`,
-    written zero-padded to the FFT's size (same results as their numpy defaults, to
-    roundoff).
-
-Null space (:func:`null_space_fast`)
-    The parameter vectors ``P = E M^-1`` do not depend on the basis of the null space, so
-    they are iterated themselves (:func:`_lanes_p`): ``P <- (J + δI)^-1 P`` with
-    ``δ = 1e-13 trace J``, renormalised so that the fixed rows are the unit matrix, from
-    the least-squares start or the lane's previous pixel, until the estimated error left
-    is below ``_P_TOL`` (no orthonormalisation, no Rayleigh-Ritz step).  Pixels go
-    through in blocks of ``_LANES`` with the pixel as the inner loop, from tiles copied
-    out of the packed planes (numba, parallel over chunks).  The reference path's checks
-    are made by sufficient tests (see :func:`_lanes_p`); a pixel they do not settle goes
-    to the exact scalar path (:func:`_pixel`: inverse subspace iteration with a
-    Rayleigh-Ritz step, up to ``MAX_ITER``, then LAPACK's ``eigh``).  Measured on 512x512
-    sinusoids: HF and full settle every pixel in the lanes, noise-free, with σ_n = 0.025
-    and under brightness change; where a model has broken down (BCC under brightness
-    change) every pixel takes the scalar path, and after a block that settles nothing
-    the lanes are skipped for ``_SKIP_BLOCKS``.  The weights ``(J_qq + δI)^-1_rr`` come
-    from the same Cholesky factor (rows ordered so that the fixed rows are last), with
-    the reference path's ridge equal to this shift.
+The kernels share their state as four named tuples of arrays (numba passes them as
+structs; their fields are resolved at compile time): :class:`SolverSpec` (the model's
+row layout and the tolerances), :class:`LaneWork` and :class:`ScalarWork` (the work
+arrays of a chunk's lane and scalar paths) and :class:`SolverOutput`.
 """
 
 from __future__ import annotations
 
-import logging
-import os
-from pathlib import Path
+from collections import namedtuple
 
 import numpy as np
 from numba import njit, prange
 
 from .models import Model
+from .nullspace import COMBINED_ROWS, M_TOL, RANK_TOL, RIDGE, NullSpace
 
-__all__ = ["null_space_fast", "MAX_ITER", "announce_compilation", "compile_kernels",
-           "camera_sums", "scan_volume", "spatial_filter", "weighted_product"]
+__all__ = ["null_space_packed", "MAX_ITER"]
 
-_log = logging.getLogger("gridflow.estimator")
-_announced = False
-
-
-def _kernels_cached() -> bool:
-    """Whether numba's on-disk cache (``cache=True``) already holds this module's kernels,
-    newer than the source: if not, the first call compiles them (20-40 s)."""
-    src = Path(__file__)
-    folders = [src.parent / "__pycache__"]
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        folders.append(Path(os.environ["NUMBA_CACHE_DIR"]))
-    mtime = src.stat().st_mtime
-    found = [f for d in folders for f in d.rglob(f"{src.stem}.*.nbi")
-             if f.stat().st_mtime >= mtime] if any(d.is_dir() for d in folders) else []
-    return len({f.name for f in found}) >= _N_KERNELS
-
-
-def compile_kernels() -> None:
-    """Compile (or load from numba's cache) every kernel by estimating a tiny random volume.
-
-    Lets an installation pay the one-off compilation up front (``make`` does) instead of in
-    the first real estimate.
-    """
-    from .core import NUMBA_MIN_PIXELS, estimate
-
-    side = int(np.ceil(np.sqrt(NUMBA_MIN_PIXELS)))      # large enough for the numba path
-    rng = np.random.default_rng(0)
-    volume = rng.random((5, 3, 3, side, side))
-    for dtype in (np.float64, np.float32):               # the input kernels per dtype
-        estimate(volume.astype(dtype), 100.0, (0.05, 0.05), model="full", sigma=2.0,
-                 window=9)
-
-
-def announce_compilation() -> None:
-    """Log (once per process, INFO on the ``gridflow`` logger) that the kernels are being
-    compiled when numba's cache does not hold them yet, so a long first call is not silent."""
-    global _announced
-    if not _announced:
-        _announced = True
-        if not _kernels_cached():
-            _log.info("compiling the estimator's numba kernels (once per installation, "
-                      "20-40 s) ...")
-
+# Subspace iterations of the scalar path before it falls back to LAPACK.
 MAX_ITER = 8
-_SHIFT = 1e-13
+# The shift of the inverse iteration: the reference path's ridge, so that the weights g
+# (from the same factor of J + δI) are those of estimator.nullspace.null_space.
+_SHIFT = RIDGE
+# Convergence of the scalar path's subspace iteration: residual below this times trace J.
 _CONV = 1e-13
+# Chunks of pixels the parallel loop hands out (each with its own work arrays).
 _CHUNKS = 256
-_N_KERNELS = 14         # functions compiled with cache=True below
 
+SolverSpec = namedtuple("SolverSpec", "idx perm k nq grows rank_tol m_tol max_iter")
+SolverSpec.__doc__ = """The model's layout and the tolerances.
 
-@njit(parallel=True, cache=True)
-def _camera_sums_kernel(volume, needed, iy0, ix0, r0, r1, weights, out):
-    C, ny, nx = weights.shape
-    h = r1 - r0
-    W = volume.shape[4]
-    for job in prange(needed.size * h):
-        j = job // h
-        y = job - j * h
-        k = needed[j]
-        for c in range(C):
-            for x in range(W):
-                out[c, j, y, x] = 0.0
-            for i in range(ny):
-                for l in range(nx):
-                    w = weights[c, i, l]
-                    if w != 0.0:
-                        src = volume[k, iy0 + i, ix0 + l, r0 + y]
-                        for x in range(W):
-                            out[c, j, y, x] += w * src[x]
+idx (n, n) plane of each entry of J; perm (n,) the rows in solving order (non-fixed
+first, the k fixed rows last); k the null-space dimension; nq = n - k; grows the
+positions (in perm order) of the rows whose weights g are wanted; rank_tol, m_tol the
+validity tolerances of estimator.nullspace; max_iter the scalar path's iterations."""
+LaneWork = namedtuple("LaneWork", "A L dl Li X Y Pn Minv G H lw P g err settled warm")
+LaneWork.__doc__ = """Work arrays of the lane solver, the lane (pixel) index last.
 
+A (n, n, nl) J; L, dl its Cholesky factor and reciprocal diagonal; Li (nq, nq, nl)
+L_qq^-1; X, Y, Pn (n, k, nl) the iterate, the solve and the renormalised iterate; Minv,
+G, H (k, k, nl); lw (10, nl) per-lane scalars; P, g, err the lanes' results; settled,
+warm (nl,) per-lane flags."""
+ScalarWork = namedtuple("ScalarWork", "A B L X Y AY H V th y b M MtM Vk wk Minv")
+ScalarWork.__doc__ = """Work arrays of the scalar path (one pixel).
 
-def camera_sums(volume, needed, iy0, ix0, rows, weights):
-    """Parallel drop-in for ``tensor._camera_sums_numpy`` (same arguments and result):
-    each output row is one task, so the volume is read once, on all cores."""
-    r0, r1, step = rows.indices(volume.shape[3])
-    if step != 1:
-        from .tensor import _camera_sums_numpy
-        return _camera_sums_numpy(volume, needed, iy0, ix0, rows, weights)
-    out = np.empty((weights.shape[0], needed.size, r1 - r0, volume.shape[4]))
-    _camera_sums_kernel(volume, needed, iy0, ix0, r0, r1, weights, out)
-    return out
-
-
-@njit(parallel=True, cache=True)
-def _spatial_kernel(src, kx, ky, out):
-    """Separable correlation of each image ``src[f]`` with ``ky`` along y and ``kx``
-    along x, edge values repeated (as ``tensor._correlate_nearest`` twice); one output
-    row per task: the y-combination of the source rows, then the x-pass of that row."""
-    F, h, W = src.shape
-    ry, rx = ky.size // 2, kx.size // 2
-    for job in prange(F * h):
-        f = job // h
-        y = job - f * h
-        tmp = np.zeros(W)
-        for j in range(ky.size):
-            w = ky[j]
-            if w != 0.0:
-                yy = min(max(y + j - ry, 0), h - 1)
-                for x in range(W):
-                    tmp[x] += w * src[f, yy, x]
-        # x-pass: the edge columns with clamped indices, the rest tap by tap over
-        # contiguous runs (no index arithmetic in the inner loop, so it vectorises)
-        row = out[f, y]
-        for x in range(W):
-            if x < rx or x >= W - rx:
-                acc = 0.0
-                for i in range(kx.size):
-                    xx = min(max(x + i - rx, 0), W - 1)
-                    acc += kx[i] * tmp[xx]
-                row[x] = acc
-            else:
-                row[x] = 0.0
-        for i in range(kx.size):
-            w = kx[i]
-            if w != 0.0:
-                for x in range(rx, W - rx):
-                    row[x] += w * tmp[x + i - rx]
-
-
-def spatial_filter(a, kx, ky):
-    """Parallel drop-in for the separable filtering in ``tensor.spatial_signals``.
-
-    Parameters
-    ----------
-    a : ndarray, shape (F, h, W)
-    kx, ky : ndarray, shape (taps,)
-        Correlation kernels along x and y.
-
-    Returns
-    -------
-    ndarray, shape (F, h, W), float64
-    """
-    src = np.ascontiguousarray(a, dtype=np.float64)
-    out = np.empty_like(src)
-    _spatial_kernel(src, np.ascontiguousarray(kx, dtype=np.float64),
-                    np.ascontiguousarray(ky, dtype=np.float64), out)
-    return out
-
-
-@njit(parallel=True, cache=True)
-def _product_kernel(coef, a, b, out):
-    """``out[y, x] = sum_f coef[f] a[f, y, x] b[f, y, x]`` on the top-left (h, W) of
-    ``out``, zeros elsewhere (the FFT's padding); one row per task."""
-    F, h, W = a.shape
-    for y in prange(out.shape[0]):
-        for x in range(out.shape[1]):
-            out[y, x] = 0.0
-        if y < h:
-            for f in range(F):
-                c = coef[f]
-                if c != 0.0:
-                    for x in range(W):
-                        out[y, x] += c * a[f, y, x] * b[f, y, x]
-
-
-def weighted_product(coef, a, b, shape, out=None):
-    """Parallel drop-in for the products of :func:`estimator.spectral.structure_tensor_fft`.
-
-    Parameters
-    ----------
-    coef : ndarray, shape (F,)
-    a, b : ndarray, shape (F, h, W), float64, C-contiguous
-    shape : (int, int)
-        Size of the zero-padded result, at least (h, W).
-    out : ndarray, shape ``shape``, float64, C-contiguous, optional
-        Where to write the result (the caller reuses one buffer for every product).
-
-    Returns
-    -------
-    ndarray, shape ``shape``
-        ``sum_f coef[f] a[f] b[f]`` in the top-left corner, zero elsewhere.
-    """
-    if out is None:
-        out = np.empty(shape)
-    _product_kernel(np.ascontiguousarray(coef, dtype=np.float64), a, b, out)
-    return out
-
-
-@njit(parallel=True, cache=True)
-def _scan_kernel(flat, bad, amax):
-    """Per image (row of ``flat``): the count of non-finite values and max |V|."""
-    for i in prange(flat.shape[0]):
-        nb = 0
-        m = 0.0
-        for v in flat[i]:
-            # branch-free, so that it vectorises: NaN and inf fail a < inf
-            a = abs(v)
-            ok = a < np.inf
-            nb += 0 if ok else 1
-            m = max(m, a if ok else 0.0)
-        bad[i] = nb
-        amax[i] = m
-
-
-def scan_volume(volume):
-    """``(number of non-finite values, max |V| over the finite ones)`` of a C-contiguous
-    volume, in one parallel pass; None when the array is not contiguous."""
-    if not volume.flags.c_contiguous or volume.size == 0:
-        return None
-    flat = volume.reshape(-1, volume.shape[-1] * volume.shape[-2])
-    bad = np.empty(flat.shape[0], dtype=np.int64)
-    amax = np.empty(flat.shape[0])
-    _scan_kernel(flat, bad, amax)
-    return int(bad.sum()), float(amax.max())
+A, B, L (n, n) J, J + δI and its Cholesky factor; X, Y, AY (n, k + 1) the subspace; H,
+V (k + 1, k + 1) and th (k + 1,) its Rayleigh-Ritz problem; y, b (n,); M, MtM, Vk, Minv
+(k, k) and wk (k,) for the checks and P = X M^-1."""
+SolverOutput = namedtuple("SolverOutput", "P g err valid nfall")
+SolverOutput.__doc__ = """Results, pixel last: P (n, k, N), g (n, N), err (N,), valid
+(N,) and nfall (_CHUNKS, 2) the counts of pixels sent to the scalar path and to LAPACK."""
 
 
 @njit(cache=True)
@@ -333,11 +154,13 @@ def _jacobi(H, V, w):
 
 
 @njit(cache=True)
-def _iterate(A, tr, X, L, Y, AY, H, Vh, th, y, b, k, max_iter):
-    """Shifted inverse subspace iteration; X (n, m) start in, Ritz vectors out.
+def _iterate(ws, tr, k, max_iter):
+    """Shifted inverse subspace iteration; ``ws.X`` (n, m) start in, Ritz vectors out.
 
-    On entry L must hold the Cholesky factor of ``A + δI``.  Convergence is judged on the
-    k-th vector, the slowest of the null space (rate θ_k / θ_{k+2})."""
+    On entry ``ws.L`` must hold the Cholesky factor of ``A + δI``.  Convergence is judged
+    on the k-th vector, the slowest of the null space (rate θ_k / θ_{k+2})."""
+    A, X, L, Y, AY, H, Vh, th, y, b = (ws.A, ws.X, ws.L, ws.Y, ws.AY, ws.H, ws.V, ws.th,
+                                        ws.y, ws.b)
     n, m = X.shape
     for _ in range(max_iter):
         for j in range(m):
@@ -396,10 +219,13 @@ def _iterate(A, tr, X, L, Y, AY, H, Vh, th, y, b, k, max_iter):
 
 
 @njit(cache=True)
-def _accept(X, th, k, nq, tr, rank_tol, m_tol, M, MtM, Vk, wk):
-    """The validity checks of :func:`estimator.solve.null_space` on a found subspace: the
-    (k+1)-th eigenvalue clear of zero (texture), and M, the fixed rows of the k null
-    vectors, well conditioned (the ds, dt directions lie in the null space)."""
+def _accept(ws, tr, spec):
+    """The validity checks of :func:`estimator.nullspace.null_space` on a found subspace
+    (``ws.X``, ``ws.th``): the (k+1)-th eigenvalue clear of zero (texture), and M, the
+    fixed rows of the k null vectors, well conditioned (the ds, dt directions lie in the
+    null space); leaves M in ``ws.M``."""
+    X, th, M, MtM, Vk, wk = ws.X, ws.th, ws.M, ws.MtM, ws.Vk, ws.wk
+    k, nq, rank_tol, m_tol = spec.k, spec.nq, spec.rank_tol, spec.m_tol
     if not th[k] > rank_tol * tr:
         return False
     for a in range(k):
@@ -416,12 +242,15 @@ def _accept(X, th, k, nq, tr, rank_tol, m_tol, M, MtM, Vk, wk):
 
 
 @njit(cache=True)
-def _pixel(A, tr, X, have, L, B, Y, AY, H, Vh, th, y, b, M, MtM, Vk, wk, Minv,
-           k, nq, perm, grows, rank_tol, m_tol, max_iter, i, P, g, err, valid):
+def _pixel(ws, tr, have, spec, i, out):
     """One pixel, scalar: the fallback of the lane solver (and its definition).
 
-    ``A`` holds J (rows in ``perm`` order), ``X`` a start (used if ``have``).  Writes
-    P, g, err, valid of pixel ``i``; returns (solved, fell back to LAPACK)."""
+    ``ws.A`` holds J (rows in ``spec.perm`` order), ``ws.X`` a start (used if ``have``).
+    Writes P, g, err, valid of pixel ``i`` into ``out``; returns (solved, fell back to
+    LAPACK)."""
+    A, X, L, B, th = ws.A, ws.X, ws.L, ws.B, ws.th
+    k, max_iter = spec.k, spec.max_iter
+    err, valid = out.err, out.valid
     n = A.shape[0]
     m = k + 1
     valid[i] = False
@@ -441,8 +270,8 @@ def _pixel(A, tr, X, have, L, B, Y, AY, H, Vh, th, y, b, M, MtM, Vk, wk, Minv,
         for r in range(n):
             for j in range(m):
                 X[r, j] = np.cos(1.0 + 0.618 * (r + 1) * (j + 1))
-    ok = _iterate(A, tr, X, L, Y, AY, H, Vh, th, y, b, k, max_iter)
-    good = ok and _accept(X, th, k, nq, tr, rank_tol, m_tol, M, MtM, Vk, wk)
+    ok = _iterate(ws, tr, k, max_iter)
+    good = ok and _accept(ws, tr, spec)
     fell = False
     if not good:
         # LAPACK after non-convergence, and also when the iteration's subspace
@@ -454,18 +283,21 @@ def _pixel(A, tr, X, have, L, B, Y, AY, H, Vh, th, y, b, M, MtM, Vk, wk, Minv,
                 X[r, j] = V[r, j]
         for j in range(m):
             th[j] = w[j]
-        good = _accept(X, th, k, nq, tr, rank_tol, m_tol, M, MtM, Vk, wk)
+        good = _accept(ws, tr, spec)
     err[i] = th[k - 1]
     if not good:
         return False, fell
-    _finish(X, M, MtM, Minv, L, y, k, nq, perm, grows, i, P, g)
+    _finish(ws, spec, i, out)
     valid[i] = True
     return True, fell
 
 
 @njit(cache=True)
-def _finish(X, M, MtM, Minv, L, y, k, nq, perm, grows, i, P, g):
+def _finish(ws, spec, i, out):
     """P = X_k M^-1 and the weights g of an accepted pixel (M as left by _accept)."""
+    X, M, MtM, Minv, L, y = ws.X, ws.M, ws.MtM, ws.Minv, ws.L, ws.y
+    k, nq, perm, grows = spec.k, spec.nq, spec.perm, spec.grows
+    P, g = out.P, out.g
     n = X.shape[0]
     # Minv by Gauss-Jordan with partial pivoting (k <= 3)
     for a in range(k):
@@ -539,11 +371,10 @@ _FM = {"contract", "arcp"}
 
 
 @njit(fastmath=_FM, error_model="numpy", cache=True)
-def _lanes_p(Jp, N, idx, perm, i0, k, nq, grows, rank_tol, m_tol, warm, A, L, dl, Li, X,
-             Y, Pn, Minv, G, H, lw, P_out, g_out, err_out, settled):
+def _lanes_p(Jp, N, i0, spec, lanes):
     """One block of _LANES pixels ``i0 ...`` (columns of the planes ``Jp``, of which the
     first ``N`` are pixels; lanes beyond repeat the last) by the parameter-vector
-    iteration.
+    iteration, in the lane work space ``lanes`` (:class:`LaneWork`).
 
     P = E M^-1 does not depend on the basis of the null space, so instead of an
     orthonormal basis and a Rayleigh-Ritz step the vectors P themselves are iterated:
@@ -561,6 +392,12 @@ def _lanes_p(Jp, N, idx, perm, i0, k, nq, grows, rank_tol, m_tol, warm, A, L, dl
     The model error λ_k is the largest Ritz value of span(P), from ``P^T J P`` and
     ``P^T P``; ``J P`` comes from the last solve (``J Y = X - δ Y``).
     """
+    idx, perm, k, nq, grows = spec.idx, spec.perm, spec.k, spec.nq, spec.grows
+    rank_tol, m_tol = spec.rank_tol, spec.m_tol
+    A, L, dl, Li, X, Y, Pn = lanes.A, lanes.L, lanes.dl, lanes.Li, lanes.X, lanes.Y, lanes.Pn
+    Minv, G, H, lw = lanes.Minv, lanes.G, lanes.H, lanes.lw
+    P_out, g_out, err_out = lanes.P, lanes.g, lanes.err
+    settled, warm = lanes.settled, lanes.warm
     n = A.shape[0]
     nl = lw.shape[1]                 # = _LANES, at run time (see _LANES)
     # gather (rows in perm order: the k fixed rows last)
@@ -833,8 +670,10 @@ def _lanes_p(Jp, N, idx, perm, i0, k, nq, grows, rank_tol, m_tol, warm, A, L, dl
 
 
 @njit(parallel=True, cache=True)
-def _solve_all(Jp, idx, perm, k, grows, rank_tol, m_tol, max_iter, P, g, err, valid, nfall):
-    """Rows are taken in the order ``perm`` (non-fixed rows first, the k fixed rows
+def _solve_all(Jp, spec, out):
+    """Every pixel of the packed planes ``Jp`` (E, N), in ``_CHUNKS`` chunks in parallel.
+
+    Rows are taken in the order ``spec.perm`` (non-fixed rows first, the k fixed rows
     last), so that the leading block of the Cholesky factor of J + δI is that of
     J_qq + δI, which gives the weights g.
 
@@ -842,48 +681,31 @@ def _solve_all(Jp, idx, perm, k, grows, rank_tol, m_tol, max_iter, P, g, err, va
     the pixel _LANES to its left); a pixel the lanes do not settle goes through the
     scalar path :func:`_pixel` (inverse subspace iteration, then LAPACK)."""
     N = Jp.shape[1]
-    n = idx.shape[0]
+    n = spec.idx.shape[0]
+    k = spec.k
     nq = n - k
     m = k + 1
     nl = _LANES
     per = ((N + nl - 1) // nl + _CHUNKS - 1) // _CHUNKS      # blocks per chunk
     for c in prange(_CHUNKS):
-        A = np.empty((n, n, nl))
-        L = np.zeros((n, n, nl))
-        dl = np.empty((n, nl))
-        Li = np.zeros((nq, nq, nl))
-        X = np.zeros((n, k, nl))
-        Y = np.empty((n, k, nl))
-        Pn = np.empty((n, k, nl))
-        MinvL = np.empty((k, k, nl))
-        G = np.empty((k, k, nl))
-        H = np.empty((k, k, nl))
-        lw = np.empty((10, nl))
-        Pl = np.empty((n, k, nl))
-        gl = np.empty((grows.size, nl))
-        el = np.empty(nl)
-        warm = np.zeros(nl, dtype=np.bool_)
-        settled = np.zeros(nl, dtype=np.bool_)
-        # scalar fallback work space
-        As = np.empty((n, n))
-        Bs = np.empty((n, n))
-        Ls = np.zeros((n, n))
-        Xs = np.empty((n, m))
-        Ys = np.empty((n, m))
-        AYs = np.empty((n, m))
-        Hs = np.empty((m, m))
-        Vs = np.empty((m, m))
-        ths = np.empty(m)
-        ys = np.empty(n)
-        bs = np.empty(n)
-        M = np.empty((k, k))
-        MtM = np.empty((k, k))
-        Vk = np.empty((k, k))
-        wk = np.empty(k)
-        Minv = np.empty((k, k))
+        lanes = LaneWork(A=np.empty((n, n, nl)), L=np.zeros((n, n, nl)),
+                         dl=np.empty((n, nl)), Li=np.zeros((nq, nq, nl)),
+                         X=np.zeros((n, k, nl)), Y=np.empty((n, k, nl)),
+                         Pn=np.empty((n, k, nl)), Minv=np.empty((k, k, nl)),
+                         G=np.empty((k, k, nl)), H=np.empty((k, k, nl)),
+                         lw=np.empty((10, nl)), P=np.empty((n, k, nl)),
+                         g=np.empty((spec.grows.size, nl)), err=np.empty(nl),
+                         settled=np.zeros(nl, dtype=np.bool_),
+                         warm=np.zeros(nl, dtype=np.bool_))
+        scalar = ScalarWork(A=np.empty((n, n)), B=np.empty((n, n)), L=np.zeros((n, n)),
+                            X=np.empty((n, m)), Y=np.empty((n, m)), AY=np.empty((n, m)),
+                            H=np.empty((m, m)), V=np.empty((m, m)), th=np.empty(m),
+                            y=np.empty(n), b=np.empty(n), M=np.empty((k, k)),
+                            MtM=np.empty((k, k)), Vk=np.empty((k, k)), wk=np.empty(k),
+                            Minv=np.empty((k, k)))
         tile = np.empty((Jp.shape[0], _TILE))
-        # have[0]: Xs holds a solved subspace; have[1]: lane blocks still to skip
-        have = np.zeros(2, dtype=np.int64)
+        # state[0]: scalar.X holds a solved subspace; state[1]: lane blocks still to skip
+        state = np.zeros(2, dtype=np.int64)
         c0 = c * per * nl
         c1 = min(N, (c + 1) * per * nl)
         for t0 in range(c0, c1, _TILE):
@@ -893,26 +715,25 @@ def _solve_all(Jp, idx, perm, k, grows, rank_tol, m_tol, max_iter, P, g, err, va
             for e in range(Jp.shape[0]):
                 for j in range(nt):
                     tile[e, j] = Jp[e, t0 + j]
-            _tile_blocks(tile, nt, t0, idx, perm, k, nq, grows, rank_tol, m_tol, max_iter,
-                         warm, A, L, dl, Li, X, Y, Pn, MinvL, G, H, lw, Pl, gl, el, settled,
-                         As, Bs, Ls, Xs, Ys, AYs, Hs, Vs, ths, ys, bs, M, MtM, Vk, wk, Minv,
-                         P, g, err, valid, nfall, c, have)
+            _tile_blocks(tile, nt, t0, spec, lanes, scalar, state, out, c)
 
 
 @njit(cache=True)
-def _tile_blocks(tile, nt, t0, idx, perm, k, nq, grows, rank_tol, m_tol, max_iter, warm, A,
-                 L, dl, Li, X, Y, Pn, MinvL, G, H, lw, Pl, gl, el, settled, As, Bs, Ls, Xs,
-                 Ys, AYs, Hs, Vs, ths, ys, bs, M, MtM, Vk, wk, Minv, P, g, err, valid, nfall,
-                 c, have):
+def _tile_blocks(tile, nt, t0, spec, lanes, scalar, state, out, c):
     """The lane blocks of one tile (pixels t0 .. t0 + nt - 1), and the scalar path for
-    the pixels they do not settle."""
+    the pixels they do not settle (``c``: the chunk, for the fallback counts)."""
+    idx, perm, k, grows = spec.idx, spec.perm, spec.k, spec.grows
+    A, X, settled, warm = lanes.A, lanes.X, lanes.settled, lanes.warm
+    Pl, gl, el = lanes.P, lanes.g, lanes.err
+    As = scalar.A
+    P, g, err, valid, nfall = out.P, out.g, out.err, out.valid, out.nfall
     n = idx.shape[0]
     nl = _LANES
     for b0 in range(0, nt, nl):
-        if have[1] > 0:
+        if state[1] > 0:
             # the lanes settled nothing in a recent block (a broken-down model, a
             # textureless region): straight to the scalar path for a while
-            have[1] -= 1
+            state[1] -= 1
             for p in range(min(nl, nt - b0)):
                 settled[p] = False
                 warm[p] = False
@@ -920,13 +741,12 @@ def _tile_blocks(tile, nt, t0, idx, perm, k, nq, grows, rank_tol, m_tol, max_ite
                     for bb in range(n):
                         A[a, bb, p] = tile[idx[perm[a], perm[bb]], b0 + p]
         else:
-            _lanes_p(tile, nt, idx, perm, b0, k, nq, grows, rank_tol, m_tol, warm, A, L, dl,
-                     Li, X, Y, Pn, MinvL, G, H, lw, Pl, gl, el, settled)
+            _lanes_p(tile, nt, b0, spec, lanes)
             any_settled = False
             for p in range(min(nl, nt - b0)):
                 any_settled = any_settled or settled[p]
             if not any_settled:
-                have[1] = _SKIP_BLOCKS
+                state[1] = _SKIP_BLOCKS
         for p in range(min(nl, nt - b0)):
             i = t0 + b0 + p
             if settled[p]:
@@ -948,58 +768,56 @@ def _tile_blocks(tile, nt, t0, idx, perm, k, nq, grows, rank_tol, m_tol, max_ite
                 # warm start: the subspace of the last pixel this path solved (when the
                 # lanes fail, as where a model has broken down, they fail for runs of
                 # neighbouring pixels, taken here in order)
-                solved, fell = _pixel(As, tr, Xs, have[0] == 1, Ls, Bs, Ys, AYs, Hs, Vs, ths,
-                                      ys, bs, M, MtM, Vk, wk, Minv, k, nq, perm, grows,
-                                      rank_tol, m_tol, max_iter, i, P, g, err, valid)
-                have[0] = 1 if solved else 0
+                solved, fell = _pixel(scalar, tr, state[0] == 1, spec, i, out)
+                state[0] = 1 if solved else 0
                 nfall[c, 0] += 1
                 if fell:
                     nfall[c, 1] += 1
                 warm[p] = False
 
 
-def null_space_fast(Jp: np.ndarray, model: Model, idx: np.ndarray):
-    """Parameter vectors of the solution space from a packed tensor.
+def null_space_packed(planes: np.ndarray, index: np.ndarray, model: Model) -> NullSpace:
+    """The parameter vectors of the solution space from a packed tensor.
 
     Parameters
     ----------
-    Jp : ndarray, shape (E, N)
+    planes : ndarray, shape (E, N)
         Packed tensor planes (flattened pixels), as from
         :func:`estimator.spectral.structure_tensor_fft`.
+    index : ndarray of int, shape (n, n)
+        Plane of entry (a, b) of this model's J (a sub-block of the packed tensor's
+        index, :meth:`estimator.tensor.PackedTensor.sub_index`).
     model : Model
-    idx : ndarray of int, shape (n, n)
-        Plane of entry (a, b) of this model's J (a sub-block of the packed tensor).
 
     Returns
     -------
-    P, g, model_error, valid, (n_scalar, n_lapack)
-        As :func:`estimator.solve.null_space` (``g`` is filled for the combined rows
-        only), plus the number of pixels the lane solver handed to the scalar path and,
-        of those, how many fell back to LAPACK ``eigh``.  ``P`` (N, n, k) and ``g``
-        (N, n) are transposed views of pixel-last arrays.
+    NullSpace
+        As :func:`estimator.nullspace.null_space` (``g`` is filled for the combined rows
+        only; ``P`` (N, n, k) and ``g`` (N, n) are transposed views of pixel-last
+        arrays), with ``fallbacks``: the number of pixels the lane solver handed to the
+        scalar path and, of those, how many fell back to LAPACK ``eigh``.
     """
-    from .solve import COMBINED_ROWS, M_TOL, RANK_TOL
-
-    N = Jp.shape[1]
+    N = planes.shape[1]
     n = model.n
     k = model.null_dim
     fixed = [model.index(r) for r in model.fixed_rows]
     perm = np.array([i for i in range(n) if i not in fixed] + fixed, dtype=np.int64)
     wanted = [model.index(r) for r in COMBINED_ROWS if r in model.rows]
     grows = np.array([int(np.flatnonzero(perm == r)[0]) for r in wanted], dtype=np.int64)
+    spec = SolverSpec(idx=np.ascontiguousarray(index, dtype=np.int64), perm=perm, k=k,
+                      nq=n - k, grows=grows, rank_tol=RANK_TOL, m_tol=M_TOL,
+                      max_iter=MAX_ITER)
     # pixel-last storage: the kernels write each pixel's entries at stride 1 along the
     # lanes, and the disentangling reads each entry as a contiguous (N,) vector; the
     # caller sees the usual (N, n, k) and (N, n) shapes as transposed views.  P is
     # written for every valid pixel and set to NaN below for the others; g only for the
     # combined rows, so the rest starts as NaN.
-    P = np.empty((n, k, N))
-    g = np.full((n, N), np.nan)
-    err = np.full(N, np.nan)
-    valid = np.zeros(N, dtype=bool)
-    nfall = np.zeros((_CHUNKS, 2), dtype=np.int64)
-    _solve_all(Jp, np.ascontiguousarray(idx, dtype=np.int64), perm, k, grows,
-               RANK_TOL, M_TOL, MAX_ITER, P, g, err, valid, nfall)
-    P, g = P.transpose(2, 0, 1), g.T
+    out = SolverOutput(P=np.empty((n, k, N)), g=np.full((n, N), np.nan),
+                       err=np.full(N, np.nan), valid=np.zeros(N, dtype=bool),
+                       nfall=np.zeros((_CHUNKS, 2), dtype=np.int64))
+    _solve_all(planes, spec, out)
+    P, g, valid = out.P.transpose(2, 0, 1), out.g.T, out.valid
     P[~valid] = np.nan
     g[~valid] = np.nan
-    return P, g, err, valid, (int(nfall[:, 0].sum()), int(nfall[:, 1].sum()))
+    return NullSpace(P, g, out.err, valid,
+                     (int(out.nfall[:, 0].sum()), int(out.nfall[:, 1].sum())))

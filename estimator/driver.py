@@ -1,145 +1,92 @@
-"""Public driver: from a camera-grid volume to per-pixel depth, slopes, motion and
-brightness change."""
+"""The public driver: from a camera-grid volume to per-pixel depth, slopes, motion and
+brightness change.
+
+:func:`estimate_models` checks the input and the settings and turns them into a
+:class:`Plan` (filters per axis, the temporal window, the camera geometry); then, band by
+band of image rows, a backend (:mod:`estimator.backends`, chosen once from the method)
+filters the signals, forms the structure tensor and solves each model's null space, and
+:func:`estimator.disentangle.disentangle` turns the parameter vectors into world units.
+``docs/architecture.md`` follows one call through the modules.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from .filters import FILTER_NAMES, FilterPair, get_filter_pair
-from .models import MODELS, get_model
-from .solve import disentangle, null_space
-from .tensor import (camera_time_signals, gaussian_moment_kernels, spatial_signals,
-                     structure_tensor, structure_tensor_reference)
+from .backends import TensorPlan, select_backend
+from .disentangle import disentangle
+from .filters import FilterPair, get_filter_pair
+from .models import MODELS, Model, covering_rows, get_model
+from .result import Estimate
+from .settings import EstimatorSettings, InputError
+from .signals import SignalPlan, signal_plan
+from .tensor import gaussian_moment_kernels
 
-__all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
-           "METHODS"]
+__all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models"]
 
-METHODS = ("fast", "grouped", "reference")
-COMBINE = ("inverse_variance", "mean")
-
-
-class InputError(ValueError):
-    """Input the estimator cannot work with; the message names the problem."""
-
-
-@dataclass(frozen=True)
-class EstimatorSettings:
-    """Estimator options (all keyword arguments of :func:`estimate`).
-
-    Attributes
-    ----------
-    sigma : float
-        Standard deviation of the Gaussian neighbourhood in x and y, pixels (paper: 16).
-    window : int
-        Taps of that Gaussian (paper: 65).
-    filters : str
-        Derivative / prefilter pair for x and y, and for cameras and time where they
-        have enough samples (see :mod:`estimator.filters`); ``"matched3"`` is used on an
-        axis with fewer samples than the pair needs.
-    temporal_radius : int or None
-        The neighbourhood spans frames ``k_ref - R .. k_ref + R`` with uniform weights.
-        Default: as many as the temporal filter allows, at most 2.
-    ref_frame : int or None
-        Reference frame ``k_ref``; default the centre frame ``(T - 1) // 2``.
-    method : {"fast", "grouped", "reference"}
-        Implementation; all give the same result to roundoff.  "fast" (default): FFT
-        moment smoothing and a numba null-space solver (:mod:`estimator._fast`);
-        "grouped": direct 65-tap smoothing of grouped products and LAPACK ``eigh``;
-        "reference": the straightforward entry-by-entry tensor and ``eigh`` (the
-        baseline of ``bench/``).
-    slant_correction : bool
-        Remove the slant-motion coupling from ``U_Z`` (see :mod:`estimator.solve`).
-    combine : {"inverse_variance", "mean"}
-        How the twice-estimated ``v, z_x, z_y, u_z`` are combined: weighted by their
-        first-order error estimates (default), or plainly averaged.
-    band_rows : int or None
-        Output rows processed at a time (bounds memory); default from a 256 MB budget.
-    """
-
-    sigma: float = 16.0
-    window: int = 65
-    filters: str = "matched5"
-    temporal_radius: int | None = None
-    ref_frame: int | None = None
-    method: str = "fast"
-    slant_correction: bool = True
-    band_rows: int | None = None
-    combine: str = "inverse_variance"
-
-    def __post_init__(self) -> None:
-        """Refuse settings that are of the wrong type or out of range (InputError naming
-        the setting); checks that need the volume are made by :func:`estimate`."""
-        def integer(v) -> bool:
-            return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
-
-        if isinstance(self.sigma, bool) or not isinstance(self.sigma, (int, float, np.number)) \
-                or not (np.isfinite(self.sigma) and self.sigma > 0):
-            raise InputError(f"sigma must be a positive number of pixels, got {self.sigma!r}")
-        if not (integer(self.window) and self.window >= 3 and self.window % 2 == 1):
-            raise InputError(f"window must be an odd number of taps >= 3, got {self.window!r}")
-        if self.filters not in FILTER_NAMES:
-            raise InputError(f"unknown filter pair {self.filters!r}; filters must be one of "
-                             f"{FILTER_NAMES}")
-        for name in ("temporal_radius", "ref_frame"):
-            v = getattr(self, name)
-            if v is not None and not (integer(v) and v >= 0):
-                raise InputError(f"{name} must be a non-negative integer or None, got {v!r}")
-        if self.method not in METHODS:
-            raise InputError(f"method must be one of {METHODS}, got {self.method!r}")
-        if not isinstance(self.slant_correction, (bool, np.bool_)):
-            raise InputError(f"slant_correction must be true or false, got "
-                             f"{self.slant_correction!r}")
-        if self.combine not in COMBINE:
-            raise InputError(f"combine must be one of {COMBINE}, got {self.combine!r}")
-        if self.band_rows is not None and not (integer(self.band_rows) and self.band_rows >= 1):
-            raise InputError(f"band_rows must be a positive integer or None, got "
-                             f"{self.band_rows!r}")
-
-
-@dataclass
-class Estimate:
-    """Result of :func:`estimate`.
-
-    Attributes
-    ----------
-    maps : dict of str to ndarray, each shape (H, W)
-        ``Z, Zx, Zy, Ux, Uy, Uz`` (world units, per frame), the model's brightness
-        parameters (``a1, a2`` for hf; also ``a1x, a1y, a2x, a2y`` for full) and
-        ``model_error``.  NaN on border pixels and where the estimate is degenerate.
-    model : str
-    interior : ndarray of bool, shape (H, W)
-        Pixels free of border effects (the window and filters fit inside the image).
-    settings : dict
-        The settings used, including the filters chosen per axis.
-    """
-
-    maps: dict[str, np.ndarray]
-    model: str
-    interior: np.ndarray
-    settings: dict = field(default_factory=dict)
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self.maps[name]
-
-
-# The fast path runs its numba kernels from this many image pixels on.  Below, loading
-# them from numba's cache (about 0.5-0.8 s per process, measured) costs more than they
-# save, so small volumes take the same FFT tensor with LAPACK's eigh instead (same
-# answers within the fast path's tolerance; see bench/README.md).
-NUMBA_MIN_PIXELS = 128 * 128
 # Pixels per call of the disentangling (whole rows): 8192 doubles are 64 KB, below
 # glibc's threshold for giving each array fresh pages of its own.
 _DISENTANGLE_PIXELS = 8192
 
 
-def _uses_numba(s, shape) -> bool:
-    return (s.method == "fast" and len(shape) == 5
-            and shape[-1] * shape[-2] >= NUMBA_MIN_PIXELS)
+@dataclass(frozen=True)
+class Plan:
+    """A volume and settings checked and turned into what the estimate does.
+
+    Attributes
+    ----------
+    volume : ndarray, shape (T, Sy, Sx, H, W)
+    scale : float
+        Power of two bringing max|V| near 1 (:func:`_unit_scale`), folded into the
+        camera weights.
+    focal_length : float
+        Pixels.
+    spacing : (float, float)
+        ``(ds_x, ds_y)``; ``ds_y = 0`` on a 1-D grid.
+    cx, cy : float
+        Principal point, pixels.
+    spatial, cam_x, cam_y, time : FilterPair
+        The filter pair per axis (``cam_y`` None on a 1-D grid, ``time`` None for a
+        light field of one frame).
+    k_ref, R_t : int
+        Reference frame and the temporal window's radius.
+    halo : int
+        Border pixels without a full window and filters.
+    grid_dims : {1, 2}
+    static : bool
+        A light field of one frame.
+    """
+
+    volume: np.ndarray
+    scale: float
+    focal_length: float
+    spacing: tuple[float, float]
+    cx: float
+    cy: float
+    spatial: FilterPair
+    cam_x: FilterPair
+    cam_y: FilterPair | None
+    time: FilterPair | None
+    k_ref: int
+    R_t: int
+    halo: int
+    grid_dims: int
+    static: bool
+
+    @property
+    def frames(self) -> np.ndarray:
+        """The frames of the temporal window."""
+        return np.arange(self.k_ref - self.R_t, self.k_ref + self.R_t + 1)
+
+    def signal_plan(self) -> SignalPlan:
+        return signal_plan(self.volume.shape, self.frames, self.cam_x, self.cam_y, self.time,
+                           self.spatial, scale=self.scale)
 
 
-def _check_volume(volume, fast: bool = False) -> np.ndarray:
+def _check_volume(volume, backend) -> tuple[np.ndarray, float]:
+    """``(volume, max |V|)`` of a valid volume, or an InputError naming the problem."""
     if not isinstance(volume, np.ndarray):
         raise InputError(f"volume must be a numpy array, got {type(volume).__name__}")
     if volume.ndim != 5:
@@ -149,11 +96,8 @@ def _check_volume(volume, fast: bool = False) -> np.ndarray:
         raise InputError(
             f"volume must be float32 or float64, got {volume.dtype}; convert integer "
             "images with volume.astype(np.float64) (intensities must be linear)")
-    if fast and volume.size:
-        from ._fast import announce_compilation, scan_volume
-
-        announce_compilation()                  # before the first kernel is compiled
-        scanned = scan_volume(volume)           # one parallel pass, no temporaries
+    if volume.size:
+        scanned = backend.scan(volume)          # one parallel pass, no temporaries
         if scanned is not None and scanned[0] == 0:
             return volume, scanned[1]
     # frame by frame: a whole-volume boolean mask would cost a quarter of the volume
@@ -200,7 +144,7 @@ def _axis_pair(name: str, samples: int, axis: str) -> FilterPair:
     raise InputError(f"too few {axis}: {samples}; the derivative filters need at least 3")
 
 
-def _time_window(s, T: int, k_ref: int, models) -> tuple:
+def _time_window(s: EstimatorSettings, T: int, k_ref: int, models) -> tuple[FilterPair, int]:
     """The temporal filter pair and the temporal radius of Ω that fit the frames."""
     reach = min(k_ref, T - 1 - k_ref)
     needs_t = any(m != "bcc" for m in models)   # I t rows need t to vary over Omega
@@ -221,9 +165,11 @@ def _time_window(s, T: int, k_ref: int, models) -> tuple:
     return time, R_t
 
 
-def _prepare(volume, focal_length, camera_spacing, principal_point, s: EstimatorSettings,
-             models: tuple[str, ...]):
-    volume, amax = _check_volume(volume, fast=_uses_numba(s, np.shape(volume)))
+def _plan(volume, focal_length, camera_spacing, principal_point, s: EstimatorSettings,
+          models: tuple[str, ...], backend) -> Plan:
+    """Check the volume, geometry and settings against each other (InputError naming the
+    problem) and choose the filters and the temporal window."""
+    volume, amax = _check_volume(volume, backend)
     T, Sy, Sx, H, W = volume.shape
     for m in models:
         if m not in MODELS:
@@ -270,16 +216,15 @@ def _prepare(volume, focal_length, camera_spacing, principal_point, s: Estimator
         time, k_ref, R_t = None, 0, 0
     else:
         time, R_t = _time_window(s, T, k_ref, models)
-    R = s.window // 2
-    halo = R + spatial.radius
+    halo = s.window // 2 + spatial.radius
     if H <= 2 * halo or W <= 2 * halo:
         raise InputError(f"image {H}x{W} too small for a {s.window}-tap window and "
                          f"{spatial.taps}-tap filters: need more than {2 * halo} pixels "
                          "per side")
-    grid_dims = 2 if Sy > 1 else 1
-    return dict(volume=volume, scale=_unit_scale(amax), f=f, spacing=(sp[0], sp[1] if Sy > 1 else 0.0), cx=cx, cy=cy,
-                spatial=spatial, cam_x=cam_x, cam_y=cam_y, time=time, k_ref=k_ref, R_t=R_t,
-                halo=halo, grid_dims=grid_dims, static=static)
+    return Plan(volume=volume, scale=_unit_scale(amax), focal_length=f,
+                spacing=(sp[0], sp[1] if Sy > 1 else 0.0), cx=cx, cy=cy, spatial=spatial,
+                cam_x=cam_x, cam_y=cam_y, time=time, k_ref=k_ref, R_t=R_t, halo=halo,
+                grid_dims=2 if Sy > 1 else 1, static=static)
 
 
 def estimate(volume: np.ndarray, focal_length: float, camera_spacing, *, model: str = "full",
@@ -328,39 +273,26 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     """
     s = EstimatorSettings(**settings)
     models = tuple(models)
-    c = _prepare(volume, focal_length, camera_spacing, principal_point, s, models)
-    vol = c["volume"]
+    backend = select_backend(s.method, np.shape(volume))
+    plan = _plan(volume, focal_length, camera_spacing, principal_point, s, models, backend)
+    mdl: dict[str, Model] = {m: get_model(m, plan.grid_dims, plan.static) for m in models}
+    rows = covering_rows(mdl.values())
+    vol = plan.volume
     T, Sy, Sx, H, W = vol.shape
-    mdl = {m: get_model(m, c["grid_dims"], c["static"]) for m in models}
-    union = get_model("full" if "full" in models else ("hf" if "hf" in models else "bcc"),
-                      c["grid_dims"], c["static"])
-    sub = {m: np.array([union.index(r) for r in mdl[m].rows]) for m in models}
-    frames = np.arange(c["k_ref"] - c["R_t"], c["k_ref"] + c["R_t"] + 1)
-    tvals = frames - c["k_ref"]
-    kernels = gaussian_moment_kernels(s.sigma, s.window)
-    halo = c["halo"]
-    n = union.n
+    halo = plan.halo
+    n = len(rows)
     # J of a band takes rows * W * n^2 * 8 bytes; bound it (and the FFT work arrays) to
     # ~512 MB, so memory does not grow with the image.
     band = s.band_rows or max(16, int(512e6 // (W * n * n * 8)))
-    sums = separable = product = None
-    numba_path = _uses_numba(s, vol.shape)
-    if s.method == "fast":
-        from .spectral import structure_tensor_fft, unpack
-
-        tensor = structure_tensor_fft
-        if numba_path:
-            from ._fast import (announce_compilation, camera_sums, null_space_fast,
-                                spatial_filter, weighted_product)
-
-            announce_compilation()
-            sums, separable, product = camera_sums, spatial_filter, weighted_product
-    else:
-        tensor = structure_tensor if s.method == "grouped" else structure_tensor_reference
-        solver = null_space
+    splan = plan.signal_plan()
+    tplan = TensorPlan(tvals=plan.frames - plan.k_ref, rows=rows,
+                       kernels=gaussian_moment_kernels(s.sigma, s.window),
+                       radius=s.window // 2, spatial_radius=plan.spatial.radius,
+                       cols=slice(halo, W - halo))
 
     interior = np.zeros((H, W), dtype=bool)
     interior[halo:H - halo, halo:W - halo] = True
+
     def nan_border(names):
         # the interior is written band by band below; only the border needs its NaN.  One
         # block for all of a model's maps: numpy asks for huge pages from 4 MB on, so
@@ -375,41 +307,23 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     # fresh pages (measured at 512^2, full model: 0.041 s in one call, about 0.025 s so)
     cols = np.arange(halo, W - halo)
     step = max(1, _DISENTANGLE_PIXELS // cols.size)          # rows per call
+    inv = 1.0 / plan.scale
     for r0 in range(halo, H - halo, band):
         r1 = min(r0 + band, H - halo)
-        rows_in = slice(r0 - halo, r1 + halo)
-        ct = camera_time_signals(vol, frames, c["cam_x"], c["cam_y"], c["time"], rows_in,
-                                 scale=c["scale"], camera_sums=sums)
-        sig = spatial_signals(ct, c["spatial"], separable=separable)
-        del ct
-        # J covers rows r0 - spatial.radius .. r1 + spatial.radius; keep the band
-        rs = c["spatial"].radius
-        if s.method == "fast":
-            Jp, pidx = tensor(sig, tvals, union.rows, kernels, s.window // 2 + rs,
-                        cols=slice(halo, W - halo),
-                        backend="scipy" if numba_path else "numpy", product=product)
-            Jp = Jp.reshape(Jp.shape[0], -1)
-        else:
-            J = tensor(sig, tvals, union.rows, kernels, s.window // 2)
-            Jf = J[rs:J.shape[0] - rs, cols].reshape(-1, n, n)
-            del J
-        del sig
+        signals = backend.signals(vol, splan, slice(r0 - halo, r1 + halo))
+        J = backend.tensor(signals, tplan)                # the band's interior pixels
+        del signals
         yy, xx = np.meshgrid(np.arange(r0, r1), cols, indexing="ij")
-        x0 = (xx - c["cx"]).ravel().astype(float)
-        y0 = (yy - c["cy"]).ravel().astype(float)
+        x0 = (xx - plan.cx).ravel().astype(float)
+        y0 = (yy - plan.cy).ravel().astype(float)
         for m in models:
-            if numba_path:
-                P, g, err, valid, _ = null_space_fast(Jp, mdl[m], pidx[np.ix_(sub[m], sub[m])])
-            elif s.method == "fast":
-                P, g, err, valid = null_space(unpack(Jp, pidx[np.ix_(sub[m], sub[m])]), mdl[m])
-            else:
-                P, g, err, valid = solver(Jf[:, sub[m][:, None], sub[m][None, :]], mdl[m])
-            inv = 1.0 / c["scale"]
+            P, g, err, valid = backend.null_space(J, mdl[m])[:4]
             for a in range(0, r1 - r0, step):
                 b = min(a + step, r1 - r0)
                 px = slice(a * cols.size, b * cols.size)
-                res = disentangle(P[px], g[px], mdl[m], x0[px], y0[px], c["f"], c["spacing"],
-                                  slant_correction=s.slant_correction, combine=s.combine)
+                res = disentangle(P[px], g[px], mdl[m], x0[px], y0[px], plan.focal_length,
+                                  plan.spacing, slant_correction=s.slant_correction,
+                                  combine=s.combine)
                 # an eigenvalue of J: undo the internal rescaling (J scales with its
                 # square).  For |V| beyond ~1e154 the true value is not representable:
                 # it becomes inf.
@@ -417,8 +331,8 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
                     res["model_error"] = (np.where(valid[px], err[px], np.nan) * inv) * inv
                 for name, val in res.items():
                     out[m][name][r0 + a:r0 + b, halo:W - halo] = val.reshape(b - a, cols.size)
-    used = dict(s.__dict__, filters_xy=c["spatial"].name, filters_sx=c["cam_x"].name,
-                filters_sy=c["cam_y"].name if c["cam_y"] else None,
-                filters_t=c["time"].name if c["time"] else None,
-                temporal_radius=c["R_t"], ref_frame=c["k_ref"])
+    used = dict(s.as_dict(), filters_xy=plan.spatial.name, filters_sx=plan.cam_x.name,
+                filters_sy=plan.cam_y.name if plan.cam_y else None,
+                filters_t=plan.time.name if plan.time else None,
+                temporal_radius=plan.R_t, ref_frame=plan.k_ref, backend=backend.name)
     return {m: Estimate(out[m], m, interior, dict(used, model=m)) for m in models}

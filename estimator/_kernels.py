@@ -1,0 +1,178 @@
+"""Numba kernels of the fast path's data passes: the input scan, the camera sums, the
+separable x/y filtering and the FFT tensor's products.
+
+One parallel pass each, with the same results as their numpy counterparts to roundoff
+(:func:`scan_volume`: the count of non-finite values with max |V|; :func:`camera_sums`
+as :func:`estimator.signals.camera_sums`; :func:`spatial_filter` as
+:func:`estimator.signals.separable`; :func:`weighted_product`: the products of
+:func:`estimator.spectral.structure_tensor_fft`, written zero-padded to the FFT's size).
+Only :class:`estimator.backends.NumbaBackend` calls them; whether numba's cache holds
+them is :mod:`estimator.jit`'s business.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+__all__ = ["scan_volume", "camera_sums", "spatial_filter", "weighted_product"]
+
+
+@njit(parallel=True, cache=True)
+def _camera_sums_kernel(volume, needed, iy0, ix0, r0, r1, weights, out):
+    C, ny, nx = weights.shape
+    h = r1 - r0
+    W = volume.shape[4]
+    for job in prange(needed.size * h):
+        j = job // h
+        y = job - j * h
+        k = needed[j]
+        for c in range(C):
+            for x in range(W):
+                out[c, j, y, x] = 0.0
+            for i in range(ny):
+                for l in range(nx):
+                    w = weights[c, i, l]
+                    if w != 0.0:
+                        src = volume[k, iy0 + i, ix0 + l, r0 + y]
+                        for x in range(W):
+                            out[c, j, y, x] += w * src[x]
+
+
+def camera_sums(volume, needed, iy0, ix0, r0, r1, weights):
+    """The camera sums of :func:`estimator.signals.camera_sums` (same result) for the
+    image rows ``r0 .. r1 - 1``: each output row is one task, so the volume is read
+    once, on all cores.
+
+    Returns
+    -------
+    ndarray, shape (C, len(needed), r1 - r0, W), float64
+    """
+    out = np.empty((weights.shape[0], needed.size, r1 - r0, volume.shape[4]))
+    _camera_sums_kernel(volume, needed, iy0, ix0, r0, r1, weights, out)
+    return out
+
+
+@njit(parallel=True, cache=True)
+def _spatial_kernel(src, kx, ky, out):
+    """Separable correlation of each image ``src[f]`` with ``ky`` along y and ``kx``
+    along x, edge values repeated (as :func:`estimator.signals.separable`); one output
+    row per task: the y-combination of the source rows, then the x-pass of that row."""
+    F, h, W = src.shape
+    ry, rx = ky.size // 2, kx.size // 2
+    for job in prange(F * h):
+        f = job // h
+        y = job - f * h
+        tmp = np.zeros(W)
+        for j in range(ky.size):
+            w = ky[j]
+            if w != 0.0:
+                yy = min(max(y + j - ry, 0), h - 1)
+                for x in range(W):
+                    tmp[x] += w * src[f, yy, x]
+        # x-pass: the edge columns with clamped indices, the rest tap by tap over
+        # contiguous runs (no index arithmetic in the inner loop, so it vectorises)
+        row = out[f, y]
+        for x in range(W):
+            if x < rx or x >= W - rx:
+                acc = 0.0
+                for i in range(kx.size):
+                    xx = min(max(x + i - rx, 0), W - 1)
+                    acc += kx[i] * tmp[xx]
+                row[x] = acc
+            else:
+                row[x] = 0.0
+        for i in range(kx.size):
+            w = kx[i]
+            if w != 0.0:
+                for x in range(rx, W - rx):
+                    row[x] += w * tmp[x + i - rx]
+
+
+def spatial_filter(a, kx, ky):
+    """The separable filtering of :func:`estimator.signals.separable` (same result), in
+    parallel over the output rows.
+
+    Parameters
+    ----------
+    a : ndarray, shape (F, h, W)
+    kx, ky : ndarray, shape (taps,)
+        Correlation kernels along x and y.
+
+    Returns
+    -------
+    ndarray, shape (F, h, W), float64
+    """
+    src = np.ascontiguousarray(a, dtype=np.float64)
+    out = np.empty_like(src)
+    _spatial_kernel(src, np.ascontiguousarray(kx, dtype=np.float64),
+                    np.ascontiguousarray(ky, dtype=np.float64), out)
+    return out
+
+
+@njit(parallel=True, cache=True)
+def _product_kernel(coef, a, b, out):
+    """``out[y, x] = sum_f coef[f] a[f, y, x] b[f, y, x]`` on the top-left (h, W) of
+    ``out``, zeros elsewhere (the FFT's padding); one row per task."""
+    F, h, W = a.shape
+    for y in prange(out.shape[0]):
+        for x in range(out.shape[1]):
+            out[y, x] = 0.0
+        if y < h:
+            for f in range(F):
+                c = coef[f]
+                if c != 0.0:
+                    for x in range(W):
+                        out[y, x] += c * a[f, y, x] * b[f, y, x]
+
+
+def weighted_product(coef, a, b, shape, out=None):
+    """The frame-weighted products of :func:`estimator.spectral.structure_tensor_fft`
+    (its ``product``), in parallel over the rows.
+
+    Parameters
+    ----------
+    coef : ndarray, shape (F,)
+    a, b : ndarray, shape (F, h, W), float64, C-contiguous
+    shape : (int, int)
+        Size of the zero-padded result, at least (h, W).
+    out : ndarray, shape ``shape``, float64, C-contiguous, optional
+        Where to write the result (the caller reuses one buffer for every product).
+
+    Returns
+    -------
+    ndarray, shape ``shape``
+        ``sum_f coef[f] a[f] b[f]`` in the top-left corner, zero elsewhere.
+    """
+    if out is None:
+        out = np.empty(shape)
+    _product_kernel(np.ascontiguousarray(coef, dtype=np.float64), a, b, out)
+    return out
+
+
+@njit(parallel=True, cache=True)
+def _scan_kernel(flat, bad, amax):
+    """Per image (row of ``flat``): the count of non-finite values and max |V|."""
+    for i in prange(flat.shape[0]):
+        nb = 0
+        m = 0.0
+        for v in flat[i]:
+            # branch-free, so that it vectorises: NaN and inf fail a < inf
+            a = abs(v)
+            ok = a < np.inf
+            nb += 0 if ok else 1
+            m = max(m, a if ok else 0.0)
+        bad[i] = nb
+        amax[i] = m
+
+
+def scan_volume(volume):
+    """``(number of non-finite values, max |V| over the finite ones)`` of a C-contiguous
+    volume, in one parallel pass; None when the array is not contiguous."""
+    if not volume.flags.c_contiguous or volume.size == 0:
+        return None
+    flat = volume.reshape(-1, volume.shape[-1] * volume.shape[-2])
+    bad = np.empty(flat.shape[0], dtype=np.int64)
+    amax = np.empty(flat.shape[0])
+    _scan_kernel(flat, bad, amax)
+    return int(bad.sum()), float(amax.max())

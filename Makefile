@@ -39,8 +39,11 @@ $(KERNELS): estimator/_kernels.py estimator/_solver.py | $(STAMP)
 env: $(STAMP) $(KERNELS)
 
 # --- results and figures -----------------------------------------------------------------
-NUMERICS  := $(wildcard estimator/*.py generators/*.py) gridflow/volume.py gridflow/io.py bench/metrics.py bench/sweep.py bench/setups.py \
-             bench/cli.py
+# what a sweep's rows depend on (the modules its resume key fingerprints); the CLI is not
+# among them: it only parses and prints
+NUMERICS  := $(wildcard estimator/*.py generators/*.py) gridflow/volume.py gridflow/io.py \
+             gridflow/errors.py bench/metrics.py bench/spec.py bench/sweep.py bench/executors.py \
+             bench/setups.py
 SWEEP_CSV := results/sweep_paper.csv
 SETUP_CSV := results/sweep_paper_setup.csv
 FIGDIR    := results/figures
@@ -48,8 +51,8 @@ FIGS      := $(FIGDIR)/fig1.png $(FIGDIR)/fig2.png $(FIGDIR)/fig3.png $(FIGDIR)/
              $(FIGDIR)/fig3_paper_setup.png $(FIGDIR)/fig4_paper_setup.png
 OUTPUTS   := $(FIGS) results/claims.csv results/claims_paper_setup.csv results/cube.csv \
              results/peers_depth.csv
-CUBE_SRC  := $(wildcard estimator/*.py scenes/*.py) gridflow/loader.py bench/cube.py \
-             bench/figures.py bench/metrics.py bench/cli.py
+CUBE_SRC  := $(wildcard estimator/*.py scenes/*.py) gridflow/loader.py gridflow/errors.py \
+             bench/cube_experiment.py bench/figures.py bench/metrics.py bench/markdown.py
 
 figures: $(STAMP) $(KERNELS)
 	@t0=$$(date +%s); $(MAKE) --no-print-directory $(OUTPUTS) && \
@@ -66,13 +69,13 @@ $(SWEEP_CSV): bench/sweeps/paper.toml $(NUMERICS) | $(STAMP)
 $(SETUP_CSV): bench/sweeps/paper_setup.toml $(NUMERICS) | $(STAMP)
 	$(BIN)/gridflow sweep $< -o $@
 
-$(FIGDIR)/fig3.png $(FIGDIR)/fig4.png &: $(SWEEP_CSV) bench/figures.py bench/cli.py | $(STAMP)
+$(FIGDIR)/fig3.png $(FIGDIR)/fig4.png &: $(SWEEP_CSV) bench/figures.py | $(STAMP)
 	$(BIN)/gridflow figures --sweep $< --out $(FIGDIR)
 
-$(FIGDIR)/fig3_paper_setup.png $(FIGDIR)/fig4_paper_setup.png &: $(SETUP_CSV) bench/figures.py bench/cli.py | $(STAMP)
+$(FIGDIR)/fig3_paper_setup.png $(FIGDIR)/fig4_paper_setup.png &: $(SETUP_CSV) bench/figures.py | $(STAMP)
 	$(BIN)/gridflow figures --sweep $< --out $(FIGDIR) --suffix _paper_setup
 
-$(FIGDIR)/fig2.png: bench/figures.py generators/sinusoid.py bench/cli.py | $(STAMP)
+$(FIGDIR)/fig2.png: bench/figures.py generators/sinusoid.py | $(STAMP)
 	$(BIN)/gridflow figures --fig2 --out $(FIGDIR)
 
 # The cube: rendered with POV-Ray into work/cube/ (cached, not committed), then estimated.
@@ -94,10 +97,10 @@ povray:
 	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq povray >/dev/null && \
 	  echo "POV-Ray installed"; }
 
-results/claims.csv: $(SWEEP_CSV) bench/claims.py bench/cli.py | $(STAMP)
+results/claims.csv: $(SWEEP_CSV) bench/claims.py bench/markdown.py | $(STAMP)
 	$(BIN)/gridflow claims $< --write-csv $@ --write-doc docs/reproduction.md
 
-results/claims_paper_setup.csv: $(SETUP_CSV) bench/claims.py bench/cli.py | $(STAMP)
+results/claims_paper_setup.csv: $(SETUP_CSV) bench/claims.py bench/markdown.py | $(STAMP)
 	$(BIN)/gridflow claims $< --write-csv $@ --write-doc docs/reproduction.md
 
 # Regenerate the stored error curves on purpose (the tests compare fresh runs with them).

@@ -39,8 +39,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-__all__ = ["check_claims", "render_markdown", "render_checks", "write_claims", "CLAIMS",
-           "missing_data", "breakdown", "replace_block"]
+from gridflow.estimator import MODELS
+
+__all__ = ["check_claims", "claims_markdown", "render_checks", "write_claims", "CLAIMS",
+           "missing_data", "breakdown"]
 
 
 BREAK = 0.1
@@ -72,7 +74,8 @@ def _fmt(x) -> str:
     return "nan" if not np.isfinite(x) else f"{x:.2g}"
 
 
-def _pairs(s: pd.Series, n=None) -> str:
+def _format_curve(s: pd.Series, n=None) -> str:
+    """``|value|: error`` pairs of a curve (every ``len // n``-th), for the numbers column."""
     items = [(v, q) for v, q in s.items() if v != 0]
     if n:
         items = items[:: max(1, len(items) // n)]
@@ -154,7 +157,7 @@ def obs1(df) -> Result:
     checks = [bool(len(mid) and (mid < 0.0025).all()),
               bool(len(above) and above.max() > mid.max() and above.max() <= 0.05)]
     return Result(_verdict(checks),
-                  f"Q_rel(a1), full: {_pairs(s, 8)}; below 0.25 % from a1 = {ok_from} on; "
+                  f"Q_rel(a1), full: {_format_curve(s, 8)}; below 0.25 % from a1 = {ok_from} on; "
                   f"max beyond 1: {_fmt(above.max())}")
 
 
@@ -164,7 +167,7 @@ def obs2(df) -> Result:
     s = _curve(df, "full", "a2", "a2")
     k = _slope(s)
     return Result(_verdict([SLOPE[0] <= k <= SLOPE[1]]),
-                  f"Q_rel(a2), full: {_pairs(s, 6)}; log-log slope {k:.2f}")
+                  f"Q_rel(a2), full: {_format_curve(s, 6)}; log-log slope {k:.2f}")
 
 
 def obs3(df) -> Result:
@@ -178,7 +181,7 @@ def obs3(df) -> Result:
     r = (hf / full)[nz]
     worse = bool((r >= 0.9).all() and r.iloc[-1] >= 2)
     return Result(_verdict(strong + [worse]),
-                  f"Q(a1) vs a1x, HF: {_pairs(hf, 5)}; full: {_pairs(full, 5)}; strong "
+                  f"Q(a1) vs a1x, HF: {_format_curve(hf, 5)}; full: {_format_curve(full, 5)}; strong "
                   f"cross-talk HF/full: {_yn(strong[0])}/{_yn(strong[1])}; HF/full ratio "
                   f"{_fmt(r.min())}..{_fmt(r.max())}, at the largest a1x {_fmt(r.iloc[-1])}")
 
@@ -192,7 +195,7 @@ def obs4(df) -> Result:
     present = [bool(c.iloc[-1] >= 10 * c.iloc[0]) for c in (hf, full)]
     same = bool(((r >= 1 / FACTOR) & (r <= FACTOR)).all())
     return Result(_verdict(present + [same]),
-                  f"Q(a2) HF/full vs a2x: {_pairs(r, 6)}; cross-talk present HF/full: "
+                  f"Q(a2) HF/full vs a2x: {_format_curve(r, 6)}; cross-talk present HF/full: "
                   f"{_yn(present[0])}/{_yn(present[1])}")
 
 
@@ -224,7 +227,7 @@ def obs6(df) -> Result:
     top = r[np.abs(r.index) >= np.abs(r.index).max() / 10]
     ok = bool(((top >= ORDERS[0]) & (top <= ORDERS[1])).all())
     return Result(_verdict([ok]),
-                  f"Q(a2) HF/full vs a1x: {_pairs(r, 8)}; top decade "
+                  f"Q(a2) HF/full vs a1x: {_format_curve(r, 8)}; top decade "
                   f"{_fmt(top.min())}..{_fmt(top.max())}")
 
 
@@ -333,7 +336,7 @@ CLAIMS = [
            "from well below 0.01", obs10),
 ]
 
-_ALL = ("bcc", "hf", "full")
+_ALL = MODELS
 # what each observation's check reads: (swept parameters, models, quantities, needs noise)
 NEEDS = {
     "1": (("a1",), ("full",), ("a1",), False),
@@ -393,11 +396,7 @@ def check_claims(df: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _markers(tag: str) -> tuple[str, str]:
-    return f"<!-- {tag}:start -->", f"<!-- {tag}:end -->"
-
-
-def render_markdown(table: pd.DataFrame, source: str) -> str:
+def claims_markdown(table: pd.DataFrame, source: str) -> str:
     """The verdict table of one sweep, as a markdown block."""
     lines = [f"Checked by `gridflow claims {source}` (thresholds and checks: "
              "`bench/claims.py`, below).", "",
@@ -420,20 +419,13 @@ def render_checks() -> str:
     return "\n".join(lines)
 
 
-def replace_block(text: str, tag: str, block: str) -> str:
-    """``text`` with the block between the ``tag`` markers replaced (or appended)."""
-    start, end = _markers(tag)
-    body = f"{start}\n\n{block}\n\n{end}"
-    if start in text and end in text:
-        return text[:text.index(start)] + body + text[text.index(end) + len(end):]
-    return text + ("\n" if text else "") + body + "\n"
-
-
 def write_claims(table: pd.DataFrame, doc=None, csv=None, source: str = "",
                  tag: str = "claims") -> None:
     """Rewrite the ``tag`` block (the verdicts) and the ``claims-checks`` block (what each
     check measures) of the markdown ``doc``, and/or write ``csv``."""
     from gridflow.io import atomic_write
+
+    from .markdown import replace_block
 
     if csv:
         with atomic_write(csv, "w") as fh:
@@ -441,7 +433,7 @@ def write_claims(table: pd.DataFrame, doc=None, csv=None, source: str = "",
     if doc:
         doc = Path(doc)
         text = doc.read_text() if doc.exists() else ""
-        text = replace_block(text, tag, render_markdown(table, source))
+        text = replace_block(text, tag, claims_markdown(table, source))
         text = replace_block(text, "claims-checks", render_checks())
         with atomic_write(doc, "w") as fh:
             fh.write(text)

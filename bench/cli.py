@@ -1,8 +1,15 @@
 """Command-line interface, the top floor of gridflow (imported by no other module).
 
-``gridflow generate | estimate | evaluate`` work on single volumes; ``gridflow sweep |
-figures | claims | cube`` drive the benchmark.  Heavy libraries are imported inside the
-commands that need them.
+Each command parses its arguments, calls one function of :mod:`gridflow.bench` and prints
+what it reports: ``generate``, ``estimate``, ``evaluate`` (:mod:`gridflow.bench.single`),
+``sweep`` (:mod:`gridflow.bench.sweep`), ``figures`` (:mod:`gridflow.bench.figures`),
+``claims`` (:mod:`gridflow.bench.claims`), ``cube`` (:mod:`gridflow.bench.
+cube_experiment`), ``peers`` (:mod:`gridflow.bench.peers`).  Choices and defaults come
+from the library (:mod:`gridflow.estimator.settings` and the modules it names), so the
+help cannot drift from what runs.  Errors about the user's input (:mod:`gridflow.errors`,
+the estimator's ``InputError``, the operating system's) are printed in one line with exit
+status 2; anything else is a bug and keeps its traceback.  Heavy libraries are imported
+inside the commands that need them.
 """
 
 from __future__ import annotations
@@ -13,13 +20,12 @@ import time
 from dataclasses import fields
 from pathlib import Path
 
-import numpy as np
-
-__all__ = ["main"]
+__all__ = ["main", "build_parser"]
 
 
 def _add_sinusoid_args(p: argparse.ArgumentParser) -> None:
     from gridflow.generators import SinusoidParams
+    from gridflow.generators.sinusoid import TEXTURES
 
     g = p.add_argument_group("sinusoid parameters (defaults: docs/reproduction.md)")
     for fl in fields(SinusoidParams):
@@ -29,16 +35,16 @@ def _add_sinusoid_args(p: argparse.ArgumentParser) -> None:
             g.add_argument(flag, type=type(default[0]), nargs=2, default=None,
                            metavar=("A", "B"), help=f"default {default[0]} {default[1]}")
         elif fl.name == "texture":
-            from gridflow.generators.sinusoid import TEXTURES
-
             g.add_argument(flag, choices=TEXTURES, default=None, help=f"default {default}")
         else:
             g.add_argument(flag, type=type(default), default=None, help=f"default {default}")
 
 
 def _add_estimator_args(p: argparse.ArgumentParser) -> None:
-    from gridflow.estimator.filters import FILTER_NAMES
+    from gridflow.estimator import COMBINE, DEFAULTS, FILTER_NAMES, METHODS
+    from gridflow.estimator.lightfield import SELECT_DEFAULTS
 
+    lines, occl = SELECT_DEFAULTS["lines"], SELECT_DEFAULTS["coarse"]
     g = p.add_argument_group("estimator settings")
     g.add_argument("--model", type=_model_list, default=None,
                    help="brightness model: bcc, hf, full (default; bcc for a light field of "
@@ -46,67 +52,47 @@ def _add_estimator_args(p: argparse.ArgumentParser) -> None:
                         "one structure tensor, and each is written to OUTPUT with _MODEL "
                         "before the suffix")
     g.add_argument("--sigma", type=float, default=None,
-                   help="Gaussian sigma, px (default 16; with --shears 2, or 1 with "
-                        "--select lines or occlusion)")
+                   help=f"Gaussian sigma, px (default {DEFAULTS['sigma']:g}; with --shears "
+                        f"{occl[0]:g}, or {lines[0]:g} with --select lines or occlusion)")
     g.add_argument("--window", type=int, default=None,
-                   help="Gaussian taps (default 65; with --shears 9, or 5 with --select "
-                        "lines or occlusion)")
-    g.add_argument("--filters", choices=FILTER_NAMES, default="matched5",
-                   help="derivative filters (default matched5)")
+                   help=f"Gaussian taps (default {DEFAULTS['window']}; with --shears "
+                        f"{occl[1]}, or {lines[1]} with --select lines or occlusion)")
+    g.add_argument("--filters", choices=FILTER_NAMES, default=DEFAULTS["filters"],
+                   help=f"derivative filters (default {DEFAULTS['filters']})")
     g.add_argument("--temporal-radius", type=int, default=None,
                    help="frames either side of the reference frame in the window")
     g.add_argument("--ref-frame", type=int, default=None, help="reference frame index")
-    g.add_argument("--method", choices=("fast", "grouped", "reference"), default="fast",
-                   help="implementation (same results; default fast)")
+    g.add_argument("--method", choices=METHODS, default=DEFAULTS["method"],
+                   help=f"implementation (same results; default {DEFAULTS['method']})")
     g.add_argument("--no-slant-correction", action="store_true",
                    help="read U_Z as the paper does (no slant-motion correction)")
-    g.add_argument("--combine", choices=("inverse_variance", "mean"),
-                   default="inverse_variance",
+    g.add_argument("--combine", choices=COMBINE, default=DEFAULTS["combine"],
                    help="how the two estimates of v, z_x, z_y, u_z are combined "
-                        "(default inverse_variance)")
-
-
-_MODELS = ("bcc", "hf", "full")
+                        f"(default {DEFAULTS['combine']})")
 
 
 def _model_list(text: str) -> tuple[str, ...]:
-    names = _MODELS if text == "all" else tuple(t.strip() for t in text.split(","))
-    bad = [t for t in names if t not in _MODELS]
+    from gridflow.estimator import MODELS
+
+    names = MODELS if text == "all" else tuple(t.strip() for t in text.split(","))
+    bad = [t for t in names if t not in MODELS]
     if bad or not names or len(set(names)) != len(names):
         raise argparse.ArgumentTypeError(
-            f"expected one of {', '.join(_MODELS)}, a comma-separated list of them or "
+            f"expected one of {', '.join(MODELS)}, a comma-separated list of them or "
             f"'all', got {text!r}")
     return tuple(names)
 
 
-def _model_outputs(output: str, models) -> dict[str, Path]:
-    """One model: OUTPUT itself; several: OUTPUT with _MODEL before the suffix."""
-    out = Path(output)
-    if len(models) == 1:
-        return {models[0]: out}
-    return {m: out.with_name(f"{out.stem}_{m}{out.suffix}") for m in models}
-
-
 def _estimator_settings(a) -> dict:
-    return dict(sigma=16.0 if a.sigma is None else a.sigma,
-                window=65 if a.window is None else a.window, filters=a.filters,
-                temporal_radius=a.temporal_radius, ref_frame=a.ref_frame, method=a.method,
-                slant_correction=not a.no_slant_correction, combine=a.combine)
-
-
-def _load_input(path: str, views: int | None = None):
-    from gridflow.io import load_volume
-
-    p = Path(path)
-    if p.is_dir():
-        from gridflow.hci import is_hci_scene, load_hci
-
-        if is_hci_scene(p):                      # an HCI 4-D light field benchmark scene
-            return load_hci(p, views=views)
-        from gridflow.loader import load_folder  # camera-grid image folder with grid.json
-
-        return load_folder(p)
-    return load_volume(p)
+    """The estimator settings given on the command line (unset ones keep the library's
+    defaults, or the light-field choice's)."""
+    s = dict(filters=a.filters, temporal_radius=a.temporal_radius, ref_frame=a.ref_frame,
+             method=a.method, slant_correction=not a.no_slant_correction, combine=a.combine)
+    if a.sigma is not None:
+        s["sigma"] = a.sigma
+    if a.window is not None:
+        s["window"] = a.window
+    return s
 
 
 def _positive_int(text: str) -> int:
@@ -119,226 +105,81 @@ def _positive_int(text: str) -> int:
     return v
 
 
-def cmd_generate(a) -> int:
-    from gridflow.generators import make_sinusoid
-    from gridflow.io import check_output, save_volume
-
-    if not (a.output or a.hci):
-        raise ValueError("give -o OUTPUT.npz, --hci FOLDER, or both")
-    if a.output:
-        check_output(a.output, suffixes=".npz", what="-o")
-    over = {fl: getattr(a, fl) for fl in vars(a) if fl in _sinusoid_fields()
-            and getattr(a, fl) is not None}
-    over = {k: tuple(v) if isinstance(v, list) else v for k, v in over.items()}
-    data = make_sinusoid(dtype=np.float32 if a.float32 else np.float64, **over)
-    if a.hci:
-        from gridflow.hci import write_hci
-
-        p = data.params
-        if p.grid[0] != p.grid[1] or p.spacing[0] != p.spacing[1]:
-            raise ValueError(f"--hci needs a square grid with equal spacing, got grid "
-                             f"{list(p.grid)} spacing {list(p.spacing)}")
-        views = data.volume[p.ref_frame].astype(np.float64)
-        lo, hi = float(views.min()), float(views.max())
-        # 8-bit views of the reference frame; an affine map onto [0, 1] does not change
-        # the disparity (parallel cameras: d = f ds / Z, px per camera step)
-        views = (views - lo) / (hi - lo if hi > lo else 1.0)
-        disparity = data.focal_length * p.spacing[0] / data.truth["Z"]
-        files = write_hci(a.hci, views, disparity=disparity)
-        print(f"wrote {a.hci}: {len(files)} files (HCI layout, {p.grid[0]}x{p.grid[1]} views "
-              f"of frame {p.ref_frame}, disparity {disparity.min():.3g} .. "
-              f"{disparity.max():.3g} px per view)")
-    if a.output:
-        save_volume(a.output, data)
-        print(f"wrote {a.output}: volume {data.volume.shape} {data.volume.dtype}")
-    return 0
-
-
-def _sinusoid_fields():
-    from gridflow.generators import SinusoidParams
-
-    return {fl.name for fl in fields(SinusoidParams)}
-
-
 def _shear_range(values: list[str]):
     """``--shears MIN MAX`` (integers, px per view) or ``--shears auto``."""
+    from gridflow.errors import UsageError
+
     if values == ["auto"]:
         return "auto"
     try:
         lo, hi = (int(t) for t in values)
     except ValueError:
-        raise ValueError(f"--shears: expected MIN MAX (two integers) or 'auto', got "
+        raise UsageError(f"--shears: expected MIN MAX (two integers) or 'auto', got "
                          f"{' '.join(values)!r}") from None
     if lo > hi:
-        raise ValueError(f"--shears: expected MIN <= MAX, got {lo} {hi}")
+        raise UsageError(f"--shears: expected MIN <= MAX, got {lo} {hi}")
     return tuple(range(lo, hi + 1))
 
 
-def _stated_shears(meta: dict):
-    """The integer shears covering the disparity range an HCI scene's ``parameters.cfg``
-    states (``meta["hci"]["disp_range"]``), or None where it states none."""
-    rng = (meta.get("hci") or {}).get("disp_range")
-    if not rng:
-        return None
-    return tuple(range(int(np.floor(rng[0])), int(np.ceil(rng[1])) + 1))
+def cmd_generate(a) -> int:
+    from gridflow.generators import SinusoidParams
 
+    from .single import generate
 
-def _estimate_refocused(a, data, output: str) -> int:
-    """``gridflow estimate --shears``: a static light field refocused over integer shears."""
-    from gridflow.estimator import Estimate
-    from gridflow.estimator.lightfield import SELECT_DEFAULTS, estimate_refocused
-    from gridflow.io import save_estimate
-
-    T = data.volume.shape[0]
-    if T != 1:
-        raise ValueError(f"--shears refocuses a light field of one frame; {a.input} has "
-                         f"{T} frames")
-    if a.model not in (None, ("bcc",)):
-        raise ValueError(f"--shears takes model bcc (a light field of one frame), got "
-                         f"{','.join(a.model)}")
-    geometry = data.meta.get("hci")
-    shifts = a.shears
-    if shifts == "auto":
-        shifts = _stated_shears(data.meta)
-        if shifts is None:
-            raise ValueError(f"--shears auto: {a.input} states no disparity range "
-                             "(parameters.cfg [meta] disp_min, disp_max); give MIN MAX")
-    views = data.volume[0]
-    if views.shape[0] != views.shape[1]:
-        raise ValueError(f"--shears needs a square grid of views, {a.input} has "
-                         f"{views.shape[0]}x{views.shape[1]}")
-    sigma = SELECT_DEFAULTS[a.select][0] if a.sigma is None else a.sigma
-    window = SELECT_DEFAULTS[a.select][1] if a.window is None else a.window
-    t0 = time.perf_counter()
-    res = estimate_refocused(views, shifts, sigma=sigma, window=window,
-                             filters=a.filters, select=a.select, fill=True)
-    dt = time.perf_counter() - t0
-    d = res["disparity"]
-    if geometry:
-        from gridflow.hci import depth_from_disparity
-
-        Z, units = depth_from_disparity(d, geometry), "m (HCI geometry)"
-    else:
-        # parallel cameras: disparity = -v ds_x with v = -f / Z
-        with np.errstate(divide="ignore", invalid="ignore"):
-            Z = data.focal_length * data.camera_spacing[0] / d
-        units = "as camera_spacing"
-    maps = {"disparity": d, "Z": Z, "model_error": res["model_error"],
-            "confidence": res["confidence"], "shear": res["shear"],
-            "filled": res["filled"].astype(float)}
-    est = Estimate(maps=maps, model="bcc", interior=res["valid"] | res["filled"],
-                   settings={"shears": list(shifts), "select": a.select, "sigma": sigma,
-                             "window": window, "filters": a.filters,
-                             "views": list(views.shape[:2]), "Z_units": units})
-    save_estimate(output, est)
-    print(f"wrote {output}: {views.shape[0]}x{views.shape[1]} views refocused over shears "
-          f"{list(shifts)} ({a.select}); {int(res['valid'].sum())} pixels estimated, "
-          f"{int(res['filled'].sum())} filled from their neighbours ('filled')")
-    print(f"estimated in {dt:.2f} s")
+    over = {fl.name: getattr(a, fl.name) for fl in fields(SinusoidParams)
+            if getattr(a, fl.name) is not None}
+    over = {k: tuple(v) if isinstance(v, list) else v for k, v in over.items()}
+    for line in generate(SinusoidParams(**over), output=a.output, hci=a.hci,
+                         float32=a.float32):
+        print(line)
     return 0
 
 
 def cmd_estimate(a) -> int:
-    from gridflow.estimator import EstimatorSettings, estimate_models
-    from gridflow.io import check_output, save_estimate
+    from .single import estimate_input
 
-    settings = _estimator_settings(a)
-    if a.shears is None:
-        EstimatorSettings(**settings)           # bad settings fail before the volume loads
-    else:
-        a.shears = _shear_range(a.shears)
-    views = a.views
-    if views is None:
-        # all views where the occlusion-aware shears use the outer ones, else what the
-        # 5-tap camera filters reach
-        views = None if (a.shears is not None and a.select != "coarse") else 5
-    data = _load_input(a.input, views=views)
-    if a.shears is not None:
-        check_output(a.output, suffixes=".npz", inputs=[a.input], what="-o")
-        return _estimate_refocused(a, data, a.output)
-    if a.model is None:
-        a.model = ("bcc",) if data.volume.shape[0] == 1 else ("full",)
-    outputs = _model_outputs(a.output, a.model)
-    for path in outputs.values():
-        check_output(path, suffixes=".npz", inputs=[a.input], what="-o")
-    if settings["ref_frame"] is None:
-        # an image folder's grid.json may name its reference frame (--ref-frame overrides)
-        settings["ref_frame"] = data.meta.get("ref_frame")
-    t0 = time.perf_counter()
-    ests = estimate_models(data.volume, data.focal_length, data.camera_spacing,
-                           models=a.model, principal_point=data.principal_point, **settings)
-    dt = time.perf_counter() - t0
-    geometry = data.meta.get("hci")
-    for m, est in ests.items():
-        if geometry and "disparity" in est.maps:
-            # converging HCI cameras: depth in metres from the disparity and the focus
-            # distance (parameters.cfg); the slopes stay those of the parallel-camera
-            # reading (camera steps as the unit of length)
-            from gridflow.hci import depth_from_disparity
-
-            est.maps["Z"] = depth_from_disparity(est.maps["disparity"], geometry)
-            est.settings["Z_units"] = "m (HCI geometry)"
-        save_estimate(outputs[m], est)
-        n_ok = int(np.isfinite(est["Z"][est.interior]).sum())
-        print(f"wrote {outputs[m]}: model {m}, {n_ok}/{int(est.interior.sum())} interior "
-              f"pixels valid")
-    print(f"estimated {', '.join(a.model)} in {dt:.2f} s")
+    shears = None if a.shears is None else _shear_range(a.shears)
+    report = estimate_input(a.input, a.output, models=a.model,
+                            settings=_estimator_settings(a), views=a.views, shears=shears,
+                            select=a.select)
+    for line in report.lines:
+        print(line)
     return 0
 
 
 def cmd_evaluate(a) -> int:
-    from gridflow.io import load_estimate
-    from .metrics import evaluate
+    from .metrics import eq22_table
+    from .single import evaluate_input
 
-    maps, interior, meta = load_estimate(a.estimate)
-    truth = dict(_load_input(a.volume, views=3).truth)
-    if not truth:
-        raise ValueError(f"{a.volume}: holds no truth maps to evaluate against")
-    shape = next(iter(truth.values())).shape
-    if interior.shape != shape:
-        raise ValueError(f"{a.estimate}: maps of shape {interior.shape} do not match the truth "
-                         f"of {a.volume} {shape}")
-    # a truth map named 'interior' (the rendered cube has one: pixels away from the faces'
-    # edges) restricts the evaluation further
-    own = truth.pop("interior", None)
-    if own is not None:
-        interior = interior & own.astype(bool)
-    rows = evaluate(maps, truth, interior)
-    if not rows:
-        raise ValueError(f"{a.estimate} and {a.volume} share no quantity names")
-    if "disparity" in maps and "disparity" in truth:
-        from .peers import hci_metrics
-
-        h = hci_metrics(maps["disparity"], truth["disparity"])
+    r = evaluate_input(a.estimate, a.volume)
+    if r.hci is not None:
+        h = r.hci
         print(f"HCI benchmark scores of the disparity (15-px border left out, "
               f"{h['n_pixels']} pixels, {h['n_nonfinite']} not finite): MSE x 100 = "
               f"{h['mse_x100']:.3f}, BadPix(0.07) = {h['badpix_007']:.2f} %, BadPix(0.03) = "
               f"{h['badpix_003']:.2f} %, BadPix(0.01) = {h['badpix_001']:.2f} %")
-    print(f"model {meta.get('model', '?')}: Eq. 22 over interior pixels with finite truth"
-          + (" and the truth's own interior mask" if own is not None else ""))
+    print(f"model {r.model}: Eq. 22 over interior pixels with finite truth"
+          + (" and the truth's own interior mask" if r.own_interior else ""))
     # Eq. 22: the relative error where the truth is non-zero (and of one sign), else the
-    # absolute error; a relative error that is undefined is shown as '-'
-    print(f"{'quantity':<9} {'Eq. 22':>11} {'measure':>7} {'Q_rel':>11} {'Q_abs':>11} "
-          f"{'pixels':>8} {'invalid':>8}")
-    for r in rows:
-        rel = f"{r['q_rel']:>11.4g}" if np.isfinite(r["q_rel"]) else f"{'-':>11}"
-        print(f"{r['quantity']:<9} {r['q']:>11.4g} {r['measure']:>7} {rel} "
-              f"{r['q_abs']:>11.4g} {r['n_pixels']:>8d} {r['n_invalid']:>8d}")
+    # absolute error
+    print(eq22_table(r.rows))
     return 0
 
 
 def cmd_sweep(a) -> int:
+    from gridflow.errors import UsageError
     from gridflow.io import check_output
 
-    from .sweep import SpecError, SweepInterrupted, SweepSpec, resolve_spec, run_sweep
+    from .spec import SweepSpec, resolve_spec
+    from .sweep import SweepInterrupted, run_sweep
 
     inputs = [resolve_spec(a.spec)] if a.spec else []
     check_output(a.output, suffixes=".csv", inputs=inputs, what="-o")
     check_output(Path(a.output).with_suffix(".json"), suffixes=".json", inputs=inputs,
                  what="the provenance sidecar of -o")
     if a.scheduler and a.workers:
-        raise SpecError("--scheduler and --workers exclude each other (--workers starts a "
-                        "local cluster)")
+        raise UsageError("--scheduler and --workers exclude each other (--workers starts a "
+                         "local cluster)")
     if a.spec:
         spec = SweepSpec.from_toml(a.spec)
     else:
@@ -347,7 +188,7 @@ def cmd_sweep(a) -> int:
         spec = SweepSpec(name=a.name, models=list(MODELS), noise=[0.0], seeds=[0])
     if a.param or a.values:
         if not (a.param and a.values):
-            raise SpecError("--param and --values go together")
+            raise UsageError("--param and --values go together")
         spec.axes = [(a.param, list(a.values))]
     for key in ("models", "noise", "seeds", "setup"):
         if getattr(a, key) is not None:
@@ -359,7 +200,7 @@ def cmd_sweep(a) -> int:
     t0 = time.perf_counter()
     client = None
     if a.scheduler or a.workers:
-        from .distributed import make_client
+        from .executors import make_client
 
         client = make_client(a.scheduler, a.workers, timeout=a.connect_timeout)
         print(f"dask: {len(client.scheduler_info()['workers'])} workers", file=sys.stderr)
@@ -378,72 +219,34 @@ def cmd_sweep(a) -> int:
 
 
 def cmd_figures(a) -> int:
-    import pandas as pd
-
-    from gridflow.generators import make_sinusoid
-
-    from . import figures as F
-
+    from gridflow.errors import UsageError
     from gridflow.io import check_output
+
+    from .figures import draw_figures
+    from .sweep import read_sweep_csv
 
     out = check_output(a.out, suffixes=None, what="--out")
     if not all(c.isalnum() or c in "_.-" for c in a.suffix):
-        raise ValueError(f"--suffix {a.suffix!r}: use letters, digits, '_', '.' and '-' only")
+        raise UsageError(f"--suffix {a.suffix!r}: use letters, digits, '_', '.' and '-' only")
     if not (a.sweep or a.fig2):
-        raise ValueError("nothing to draw: give --sweep CSV (Figs. 3, 4) and/or --fig2")
-    written = []
-    if a.sweep:
-        df = _read_sweep_csv(a.sweep)
-        label = ", ".join(f"sweep {n}" for n in df["sweep"].unique()) if "sweep" in df else ""
-        written += F.save(F.fig3(df, label), out, "fig3" + a.suffix)
-        written += F.save(F.fig4(df, label=label), out, "fig4" + a.suffix)
-    if a.fig2:
-        sv = make_sinusoid(a2=-0.2, a2x=-0.002)
-        c = sv.volume.shape[1] // 2, sv.volume.shape[2] // 2
-        k = sv.params.ref_frame
-        T = sv.volume.shape[0]
-        frames = [sv.volume[i, c[0], c[1]] for i in (0, k, T - 1)]
-        titles = [f"(a) first frame, t = {-k}", "reference frame, t = 0",
-                  f"(b) last frame, t = {T - 1 - k}"]
-        written += F.save(F.fig2(frames, titles, r"Fig. 2: $a_1 = a_{1,x} = 0$, "
-                                 r"$a_2 = -0.2$, $a_{2,x} = -0.002$"),
-                          out, "fig2")
-    for p in written:
+        raise UsageError("nothing to draw: give --sweep CSV (Figs. 3, 4) and/or --fig2")
+    df = read_sweep_csv(a.sweep) if a.sweep else None
+    for p in draw_figures(out, sweep=df, fig2_too=a.fig2, suffix=a.suffix):
         print(f"wrote {p}")
     return 0
-
-
-def _read_sweep_csv(path):
-    """A sweep CSV as a DataFrame, or a ValueError naming the file and what is wrong."""
-    import pandas as pd
-
-    from gridflow.io import check_input_file
-
-    check_input_file(path, "sweep CSV")
-    try:
-        df = pd.read_csv(path)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not a readable CSV ({exc})") from None
-    need = {"param", "value", "model", "quantity", "noise", "q_rel", "q_abs"}
-    missing = need - set(df)
-    if missing:
-        raise ValueError(f"{path}: not a sweep CSV (missing columns {sorted(missing)})")
-    for col in ("value", "noise", "q_rel", "q_abs"):
-        if not pd.api.types.is_numeric_dtype(df[col]):
-            raise ValueError(f"{path}: column {col!r} must hold numbers")
-    return df
 
 
 def cmd_claims(a) -> int:
     from gridflow.io import check_output
 
     from .claims import check_claims, write_claims
+    from .sweep import read_sweep_csv
 
     if a.write_csv:
         check_output(a.write_csv, suffixes=".csv", inputs=[a.csv], what="--write-csv")
     if a.write_doc:
         check_output(a.write_doc, suffixes=".md", inputs=[a.csv], what="--write-doc")
-    df = _read_sweep_csv(a.csv)
+    df = read_sweep_csv(a.csv)
     table = check_claims(df)
     print(table.to_string(index=False, columns=["id", "verdict", "numbers"],
                           max_colwidth=110))
@@ -458,15 +261,10 @@ def cmd_claims(a) -> int:
 
 
 def cmd_cube(a) -> int:
+    from gridflow.io import check_output
     from gridflow.scenes import CubeScene
 
-    from . import figures as F
-    from .cube import cube_table, fig1, observation11, run_cube
-    from gridflow.io import atomic_write
-    from gridflow.loader import load_folder
-    from gridflow.scenes.render import render_cube
-
-    from gridflow.io import check_output
+    from .cube_experiment import run_cube_experiment
 
     check_output(a.csv, suffixes=".csv", what="--csv")
     check_output(a.fig_dir, suffixes=None, what="--fig-dir")
@@ -474,132 +272,54 @@ def cmd_cube(a) -> int:
     if a.write_doc:
         check_output(a.write_doc, suffixes=".md", what="--write-doc")
     scene = CubeScene(width=a.size, height=a.size, grid=(a.grid, a.grid), frames=a.frames)
-    t0 = time.perf_counter()
-    folder = render_cube(scene, a.cache, progress=not a.no_progress)
-    data = load_folder(folder)
-    src = data.meta.get("source") or {}
-    print(f"scene {folder}: rendered {src.get('rendered')} images in "
-          f"{src.get('render_seconds')} s (this run: {time.perf_counter() - t0:.1f} s)")
-    t1 = time.perf_counter()
-    results = run_cube(data, sigma=a.sigma, window=a.window)
+    r = run_cube_experiment(scene, a.cache, csv=a.csv, fig_dir=a.fig_dir, doc=a.write_doc,
+                            sigma=a.sigma, window=a.window, progress=not a.no_progress)
+    print(f"scene {r.folder}: rendered {r.rendered} images in {r.render_seconds} s "
+          f"(this run: {r.seconds_render:.1f} s)")
     print(f"estimated bcc, hf, full (sigma {a.sigma:g}, {a.window} taps) in "
-          f"{time.perf_counter() - t1:.1f} s")
-    table = cube_table(data, results)
-    with atomic_write(a.csv, "w") as fh:
-        table.to_csv(fh, index=False, float_format="%.6g")
-    print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
-    checks = observation11(table)
-    for r in checks:
-        print(f"observation 11, {r['face']} face: {r['check']}: "
-              f"{'holds' if r['holds'] else 'does not hold'}")
-    if a.write_doc:
-        from .claims import replace_block
-        from .cube import render_markdown
-
-        doc = Path(a.write_doc)
-        text = doc.read_text() if doc.exists() else ""
-        block = render_markdown(table, checks, f"the scene `{folder.name}`, sigma {a.sigma:g}, "
-                                f"{a.window} taps")
-        with atomic_write(doc, "w") as fh:
-            fh.write(replace_block(text, "cube", block))
-        print(f"wrote {doc}")
-    for p in F.save(fig1(data, results), a.fig_dir, "fig1"):
+          f"{r.seconds_estimate:.1f} s")
+    print(r.table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+    for c in r.checks:
+        print(f"observation 11, {c['face']} face: {c['check']}: "
+              f"{'holds' if c['holds'] else 'does not hold'}")
+    for p in r.written:
         print(f"wrote {p}")
-    print(f"wrote {a.csv}")
     return 0
 
 
 def cmd_peers(a) -> int:
-    import pandas as pd
+    from gridflow.io import check_output
 
-    from gridflow.io import atomic_write, check_output
-
-    from . import figures as F
-    from .cube import cube_lightfield
-    from .peers import DEPTH_METHODS, compare_motion, run_depth
+    from .peers import run_peers, score_hci_scene
 
     for path in (a.csv_depth, a.csv_motion):
         check_output(path, suffixes=".csv", what="output")
     check_output(a.fig_dir, suffixes=None, what="--fig-dir")
-    # depth: the cube as a light field with disparities up to 3 px per view
-    views, truth, scene = cube_lightfield(a.cache, progress=not a.no_progress)
-    label = (f"cube (POV-Ray), {scene.grid[0]}x{scene.grid[1]} views, disparity "
-             f"{np.nanmin(truth):.2f} .. {np.nanmax(truth):.2f} px/view")
-    depth = [run_depth(m, views, truth) for m in DEPTH_METHODS]
-    table = pd.DataFrame([{"scene": label, **{k: v for k, v in r.items()
-                                              if k not in ("disparity", "confidence")}}
-                          for r in depth])
-    # run times are printed, not stored: the CSV stays the same from run to run
-    with atomic_write(a.csv_depth, "w") as fh:
-        table.drop(columns="seconds").to_csv(fh, index=False, float_format="%.6g")
-    print(label)
-    print(table.drop(columns="scene").to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-    for p in F.save(F.fig_peers_depth(truth, depth, label), a.fig_dir, "peers_depth"):
-        print(f"wrote {p}")
-    if a.write_hci:
-        from gridflow.hci import write_hci
-
-        files = write_hci(a.write_hci, views, disparity=truth)
-        print(f"wrote {a.write_hci}: the cube light field in HCI layout ({len(files)} files)")
-    # motion: the centre camera's frames, sinusoids under brightness change and the cube
-    from gridflow.generators import make_sinusoid
-    from gridflow.loader import load_folder
-    from gridflow.scenes import CubeScene
-    from gridflow.scenes.render import render_cube
-
-    rows = []
-    base = dict(U_X=0.05, U_Y=0.03)
-    for case, kw in (("sinusoid", {}), ("sinusoid a1=0.1", dict(a1=0.1)),
-                     ("sinusoid a1x=0.002", dict(a1x=0.002)),
-                     ("sinusoid a2x=-0.002", dict(a2x=-0.002)),
-                     ("sinusoid noise 0.025", dict(noise=0.025))):
-        for r in compare_motion(make_sinusoid(**base, **kw)):
-            rows.append({"data": case, **r})
-    cube = load_folder(render_cube(CubeScene(), a.cache, progress=not a.no_progress))
-    for r in compare_motion(cube, sigma=8.0, window=33):
-        rows.append({"data": "cube (spotlight)", **r})
-    motion = pd.DataFrame(rows)
-    with atomic_write(a.csv_motion, "w") as fh:
-        motion.drop(columns="seconds").to_csv(fh, index=False, float_format="%.6g")
-    wide = motion.pivot_table(index=["data", "quantity"], columns="method", values="q",
-                              sort=False)
+    r = run_peers(a.cache, csv_depth=a.csv_depth, csv_motion=a.csv_motion,
+                  fig_dir=a.fig_dir, write_hci=a.write_hci, progress=not a.no_progress)
+    print(r.label)
+    print(r.depth.drop(columns="scene").to_string(index=False,
+                                                  float_format=lambda v: f"{v:.4g}"))
+    wide = r.motion.pivot_table(index=["data", "quantity"], columns="method", values="q",
+                                sort=False)
     print("motion: Eq. 22 of the image flow (px/frame; relative where the truth keeps one "
           "sign, else absolute)")
     print(wide.to_string(float_format=lambda v: f"{v:.3g}"))
-    secs = motion.groupby(["data", "method"], sort=False).seconds.first().unstack()
+    secs = r.motion.groupby(["data", "method"], sort=False).seconds.first().unstack()
     print("seconds per volume (gridflow: the three models together)")
     print(secs.to_string(float_format=lambda v: f"{v:.2f}"))
-    print(f"wrote {a.csv_depth}, {a.csv_motion}")
+    for p in r.written:
+        print(f"wrote {p}")
     if a.hci:
-        from gridflow.hci import load_hci
-
-        lf = load_hci(a.hci)
-        if "disparity" not in lf.truth:
-            raise ValueError(f"{a.hci}: no gt_disp_lowres.pfm to score against")
-        views, gt = lf.volume[0], lf.truth["disparity"]
-        n = views.shape[0]
-        shifts = _stated_shears(lf.meta)
-        kw = {} if shifts is None else {"shifts": shifts}
-        out = []
-        for m in DEPTH_METHODS:
-            r = run_depth(m, views, gt, **(kw if m.startswith("gridflow_") else {}))
-            used = (f"{n}x{n}" if m in ("gridflow_occlusion", "epi_st") else
-                    f"{n}+{n}" if m == "gridflow_lines" else f"{min(5, n)}x{min(5, n)}")
-            out.append({**r, "views": used})
-        if n > 5:
-            # the occlusion-aware shears on the central 5 x 5 alone: what the outer views add
-            for m in ("gridflow_occlusion", "gridflow_lines"):
-                r = run_depth(m, views, gt, grid=5, **kw)
-                out.append({**r, "views": "5x5" if m == "gridflow_occlusion" else "5+5"})
-        t = pd.DataFrame([{k: v for k, v in r.items() if k not in ("disparity", "confidence")}
-                          for r in out])
-        print(f"{a.hci} ({n}x{n} views{'; shears ' + str(list(kw['shifts'])) if kw else ''}):")
-        print(t.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+        desc, table = score_hci_scene(a.hci)
+        print(f"{desc}:")
+        print(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
     from gridflow import __version__
+    from gridflow.estimator.lightfield import SELECTS
 
     from .setups import SETUPS
 
@@ -632,7 +352,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="light fields of one frame: refocus over the integer disparities "
                         "MIN..MAX (px per view) for disparities beyond about +-1; 'auto': "
                         "an HCI scene's stated range")
-    p.add_argument("--select", choices=("coarse", "lines", "occlusion"), default="coarse",
+    p.add_argument("--select", choices=SELECTS, default=SELECTS[0],
                    help="with --shears: each pixel's shear nearest a coarse estimate "
                         "(default; fine periodic texture), or chosen among camera "
                         "sub-grids and shifted windows: 1-D ones along the centre row and "
@@ -713,6 +433,17 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _user_errors() -> tuple[type, ...]:
+    """The exceptions that are about the user's input, not bugs in gridflow."""
+    from gridflow.errors import GridflowError
+    from gridflow.estimator import InputError
+    from gridflow.scenes.render import PovrayMissing, RenderError
+
+    from .executors import ClusterError
+
+    return (GridflowError, InputError, OSError, PovrayMissing, RenderError, ClusterError)
+
+
 def main(argv=None) -> int:
     import logging
 
@@ -727,7 +458,7 @@ def main(argv=None) -> int:
         log.setLevel(logging.INFO)
     try:
         return a.func(a)
-    except (ValueError, TypeError, FileNotFoundError, OSError, RuntimeError) as exc:
+    except _user_errors() as exc:
         print(f"gridflow {a.command}: error: {exc}", file=sys.stderr)
         return 2
 

@@ -6,7 +6,8 @@ last frames are darkened alike (``exp(-0.2 * 4^2) = 0.04``); the reference frame
 between them to make that visible.
 Fig. 3: errors of ``a1`` and ``a2`` against each of ``a1, a1x, a2, a2x`` (HF and full).
 Fig. 4: ``Q_rel(U_Z)`` against the same, three models, noise-free and sigma_n = 0.025.
-Fig. 1 (the cube) is drawn by :mod:`gridflow.bench.cube`.
+Fig. 1 (the cube) is drawn by :mod:`gridflow.bench.cube_experiment`.
+:func:`draw_figures` is what ``gridflow figures`` does.
 
 Error measure per panel (Eq. 22): relative when the quantity is the swept parameter
 itself, absolute for cross-talk (the swept parameter leaves the quantity's reference at 0
@@ -25,7 +26,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-__all__ = ["fig2", "fig3", "fig4", "save", "STYLE", "MODEL_STYLE", "PARAM_LABEL"]
+__all__ = ["fig2", "fig3", "fig4", "fig_peers_depth", "draw_figures", "sinusoid_fig2", "save",
+           "STYLE", "MODEL_STYLE", "PARAM_LABEL"]
 
 STYLE = {"font.size": 8, "axes.titlesize": 8, "axes.labelsize": 8, "legend.fontsize": 7,
          "xtick.labelsize": 7, "ytick.labelsize": 7, "figure.dpi": 150, "savefig.dpi": 150,
@@ -192,3 +194,34 @@ def fig_peers_depth(truth: np.ndarray, results: list[dict], title: str):
     fig.colorbar(im2, ax=list(axes[1:]), shrink=0.8, label="|error| (px per view)")
     fig.suptitle(title, fontsize=10)
     return fig
+
+
+def sinusoid_fig2():
+    """Fig. 2 of the paper from the generator: the first, reference and last central
+    images of a sinusoid with ``a2 = -0.2, a2x = -0.002``."""
+    from gridflow.generators import make_sinusoid
+
+    sv = make_sinusoid(a2=-0.2, a2x=-0.002)
+    c = sv.volume.shape[1] // 2, sv.volume.shape[2] // 2
+    k = sv.params.ref_frame
+    T = sv.volume.shape[0]
+    frames = [sv.volume[i, c[0], c[1]] for i in (0, k, T - 1)]
+    titles = [f"(a) first frame, t = {-k}", "reference frame, t = 0",
+              f"(b) last frame, t = {T - 1 - k}"]
+    return fig2(frames, titles, r"Fig. 2: $a_1 = a_{1,x} = 0$, $a_2 = -0.2$, "
+                r"$a_{2,x} = -0.002$")
+
+
+def draw_figures(out_dir, *, sweep: pd.DataFrame | None = None, fig2_too: bool = False,
+                 suffix: str = "") -> list[Path]:
+    """Figs. 3 and 4 from a sweep table (:func:`gridflow.bench.sweep.read_sweep_csv`)
+    and/or Fig. 2, as ``fig3SUFFIX.png`` etc. in ``out_dir``; returns the paths written."""
+    written = []
+    if sweep is not None:
+        label = (", ".join(f"sweep {n}" for n in sweep["sweep"].unique())
+                 if "sweep" in sweep else "")
+        written += save(fig3(sweep, label), out_dir, "fig3" + suffix)
+        written += save(fig4(sweep, label=label), out_dir, "fig4" + suffix)
+    if fig2_too:
+        written += save(sinusoid_fig2(), out_dir, "fig2")
+    return written

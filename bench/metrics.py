@@ -1,4 +1,5 @@
-"""Error measures of Eq. 22, as small named metrics whose ids the CSVs and plots reuse.
+"""Error measures: Eq. 22 (named metrics whose ids the CSVs and plots reuse) and the HCI
+4-D light field benchmark's disparity scores.
 
 ``q_rel`` is the mean absolute relative error, ``q_abs`` the mean absolute error, both over
 the pixels free of border effects.  Pixels whose estimate is NaN (degenerate) inside that
@@ -7,6 +8,10 @@ silently dropped.  Following the paper, the headline value ``q`` of a quantity i
 ``q_rel`` when its reference is bounded away from zero (non-zero and of one sign on every
 pixel) and ``q_abs`` otherwise: a local ``a1 = a1x X`` that crosses zero inside the image
 would make a relative error meaningless.
+
+:func:`hci_metrics` scores a disparity map as the HCI benchmark does (Honauer et al.,
+ACCV 2016): MSE x 100 and BadPix(0.07, 0.03, 0.01) over the image without a 15-pixel
+border.
 """
 
 from __future__ import annotations
@@ -16,10 +21,10 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["Metric", "METRICS", "q_rel", "q_abs", "evaluate"]
+__all__ = ["Metric", "METRICS", "q_rel", "q_abs", "evaluate", "eq22_table", "hci_metrics"]
 
 
-def _pairs(est: np.ndarray, ref: np.ndarray, mask: np.ndarray):
+def _finite_pairs(est: np.ndarray, ref: np.ndarray, mask: np.ndarray):
     est, ref = np.asarray(est, float), np.asarray(ref, float)
     if est.shape != ref.shape or mask.shape != est.shape:
         raise ValueError(f"shape mismatch: estimate {est.shape}, reference {ref.shape}, "
@@ -38,7 +43,7 @@ def q_rel(est: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> float:
     mask : ndarray of bool, shape (H, W)
         Pixels to average over.
     """
-    e, r = _pairs(est, ref, mask)
+    e, r = _finite_pairs(est, ref, mask)
     if e.size == 0 or np.any(r == 0):
         return float("nan")
     return float(np.mean(np.abs(e - r) / np.abs(r)))
@@ -46,7 +51,7 @@ def q_rel(est: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> float:
 
 def q_abs(est: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> float:
     """Mean of ``|Q_i - Q_ref,i|`` (Eq. 22).  Parameters as :func:`q_rel`."""
-    e, r = _pairs(est, ref, mask)
+    e, r = _finite_pairs(est, ref, mask)
     return float(np.mean(np.abs(e - r))) if e.size else float("nan")
 
 
@@ -98,3 +103,47 @@ def evaluate(maps: dict[str, np.ndarray], truth: dict[str, np.ndarray], mask: np
                      "q": rel if use_rel else ab, "measure": "rel" if use_rel else "abs",
                      "n_pixels": int(m.sum()), "n_invalid": n_inv})
     return rows
+
+
+def eq22_table(rows: list[dict]) -> str:
+    """The rows of :func:`evaluate` as a fixed-width text table (a relative error that is
+    undefined is shown as '-')."""
+    lines = [f"{'quantity':<9} {'Eq. 22':>11} {'measure':>7} {'Q_rel':>11} {'Q_abs':>11} "
+             f"{'pixels':>8} {'invalid':>8}"]
+    for r in rows:
+        rel = f"{r['q_rel']:>11.4g}" if np.isfinite(r["q_rel"]) else f"{'-':>11}"
+        lines.append(f"{r['quantity']:<9} {r['q']:>11.4g} {r['measure']:>7} {rel} "
+                     f"{r['q_abs']:>11.4g} {r['n_pixels']:>8d} {r['n_invalid']:>8d}")
+    return "\n".join(lines)
+
+
+def hci_metrics(d_est: np.ndarray, d_gt: np.ndarray, border: int = 15) -> dict:
+    """The HCI benchmark's scores of a disparity map.
+
+    Parameters
+    ----------
+    d_est, d_gt : ndarray, shape (H, W)
+        Estimated and true disparity (px per camera step).  Non-finite estimates count
+        as wrong (BadPix) and are left out of the MSE; pixels where the truth is not
+        finite are not scored.
+    border : int
+        Pixels left out at each side (the benchmark's 15).
+
+    Returns
+    -------
+    dict
+        ``mse_x100, badpix_007, badpix_003, badpix_001`` (percent), ``n_pixels`` (scored),
+        ``n_nonfinite`` (of those, estimates that are not finite).
+    """
+    e = np.asarray(d_est, float)[border:-border or None, border:-border or None]
+    g = np.asarray(d_gt, float)[border:-border or None, border:-border or None]
+    # pixels without truth (a rendered scene's background) are not scored
+    has = np.isfinite(g)
+    e, g = e[has], g[has]
+    ok = np.isfinite(e)
+    err = np.abs(e - g)
+    out = {"mse_x100": float(100.0 * np.mean(err[ok] ** 2)) if ok.any() else float("nan"),
+           "n_pixels": int(g.size), "n_nonfinite": int((~ok).sum())}
+    for tau, key in ((0.07, "badpix_007"), (0.03, "badpix_003"), (0.01, "badpix_001")):
+        out[key] = float(100.0 * np.mean(~ok | (err > tau)))
+    return out

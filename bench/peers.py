@@ -21,49 +21,25 @@ in pixels per camera step with the HCI sign.
   written here: orientation of the horizontal and vertical epipolar-plane images from a
   Gaussian-smoothed 2-D structure tensor, the more coherent of the two kept per pixel.
 
-Metrics (:func:`hci_metrics`): the benchmark's MSE x 100 and BadPix(0.07, 0.03, 0.01) over
-the image without a 15-pixel border.
+Scores: :func:`gridflow.bench.metrics.hci_metrics` (the HCI benchmark's MSE x 100 and
+BadPix) for depth, Eq. 22 of the image flow for motion.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
-__all__ = ["hci_metrics", "epi_structure_tensor", "DEPTH_METHODS", "run_depth"]
+from gridflow.estimator import MODELS
 
+from .metrics import evaluate, hci_metrics
 
-def hci_metrics(d_est: np.ndarray, d_gt: np.ndarray, border: int = 15) -> dict:
-    """The HCI benchmark's scores of a disparity map.
-
-    Parameters
-    ----------
-    d_est, d_gt : ndarray, shape (H, W)
-        Estimated and true disparity (px per camera step).  Non-finite estimates count
-        as wrong (BadPix) and are left out of the MSE; pixels where the truth is not
-        finite are not scored.
-    border : int
-        Pixels left out at each side (the benchmark's 15).
-
-    Returns
-    -------
-    dict
-        ``mse_x100, badpix_007, badpix_003, badpix_001`` (percent), ``n_pixels`` (scored),
-        ``n_nonfinite`` (of those, estimates that are not finite).
-    """
-    e = np.asarray(d_est, float)[border:-border or None, border:-border or None]
-    g = np.asarray(d_gt, float)[border:-border or None, border:-border or None]
-    # pixels without truth (a rendered scene's background) are not scored
-    has = np.isfinite(g)
-    e, g = e[has], g[has]
-    ok = np.isfinite(e)
-    err = np.abs(e - g)
-    out = {"mse_x100": float(100.0 * np.mean(err[ok] ** 2)) if ok.any() else float("nan"),
-           "n_pixels": int(g.size), "n_nonfinite": int((~ok).sum())}
-    for tau, key in ((0.07, "badpix_007"), (0.03, "badpix_003"), (0.01, "badpix_001")):
-        out[key] = float(100.0 * np.mean(~ok | (err > tau)))
-    return out
+__all__ = ["epi_structure_tensor", "DEPTH_METHODS", "run_depth", "compare_motion",
+           "MOTION_CASES", "run_peers", "PeersReport", "score_hci_scene"]
 
 
 def _gauss(sigma: float, rmax: int | None = None) -> np.ndarray:
@@ -263,7 +239,7 @@ def flow_farneback(volume: np.ndarray, k: int) -> dict:
     return {"flow_x": f[..., 0] / 2.0, "flow_y": f[..., 1] / 2.0}
 
 
-def compare_motion(data, models=("bcc", "hf", "full"), **settings) -> list[dict]:
+def compare_motion(data, models=MODELS, **settings) -> list[dict]:
     """gridflow's models and the two optical-flow peers on one volume, scored alike.
 
     Parameters
@@ -283,8 +259,6 @@ def compare_motion(data, models=("bcc", "hf", "full"), **settings) -> list[dict]
     """
     from gridflow.estimator import estimate_models
 
-    from .metrics import evaluate
-
     k = settings.get("ref_frame") or (data.volume.shape[0] - 1) // 2
     truth = image_flow(data.truth, data.focal_length, data.principal_point)
     t0 = time.perf_counter()
@@ -303,3 +277,135 @@ def compare_motion(data, models=("bcc", "hf", "full"), **settings) -> list[dict]
         for r in evaluate(fl, truth, mask):
             rows.append({"method": name, **r, "seconds": secs})
     return rows
+
+
+# --- what `gridflow peers` runs ------------------------------------------------------------
+
+# the sinusoids the motion comparison runs on: lateral motion (U_X, U_Y) on top of the
+# paper's U_Z, under each kind of brightness change and with noise
+MOTION_BASE = dict(U_X=0.05, U_Y=0.03)
+MOTION_CASES = (("sinusoid", {}), ("sinusoid a1=0.1", dict(a1=0.1)),
+                ("sinusoid a1x=0.002", dict(a1x=0.002)),
+                ("sinusoid a2x=-0.002", dict(a2x=-0.002)),
+                ("sinusoid noise 0.025", dict(noise=0.025)))
+
+
+@dataclass
+class PeersReport:
+    """What :func:`run_peers` measured.
+
+    Attributes
+    ----------
+    label : str
+        The depth scene.
+    depth : pandas.DataFrame
+        One row per depth method: :func:`gridflow.bench.metrics.hci_metrics` and
+        ``seconds``.
+    motion : pandas.DataFrame
+        One row per case, method and flow component (:func:`compare_motion`).
+    written : list of Path
+    """
+
+    label: str
+    depth: pd.DataFrame
+    motion: pd.DataFrame
+    written: list
+
+
+def run_peers(cache, *, csv_depth, csv_motion, fig_dir, write_hci=None,
+              progress: bool = True) -> PeersReport:
+    """gridflow and the peer methods side by side; writes the two tables and the figure.
+
+    Depth: every method of :data:`DEPTH_METHODS` on the cube rendered as a static light
+    field with disparities up to 3 px per view
+    (:func:`gridflow.scenes.render_cube_lightfield`).  Motion: gridflow's models against
+    scikit-image's and OpenCV's optical flow on the sinusoids of :data:`MOTION_CASES` and
+    on the cube under its spotlight.  Run times are reported, not stored: the CSVs are the
+    same from run to run.
+
+    Parameters
+    ----------
+    cache : path
+        The render cache (``work/cube``).
+    csv_depth, csv_motion : path
+        Written atomically.
+    fig_dir : path
+        Where ``peers_depth.{png,pdf}`` go.
+    write_hci : path, optional
+        Also write the cube light field there as an HCI scene.
+    progress : bool
+        The renders' progress bars.
+    """
+    from gridflow.generators import make_sinusoid
+    from gridflow.io import atomic_write
+    from gridflow.loader import load_folder
+    from gridflow.scenes import CubeScene, render_cube, render_cube_lightfield
+
+    from . import figures as F
+
+    views, truth, scene = render_cube_lightfield(cache, progress=progress)
+    label = (f"cube (POV-Ray), {scene.grid[0]}x{scene.grid[1]} views, disparity "
+             f"{np.nanmin(truth):.2f} .. {np.nanmax(truth):.2f} px/view")
+    depth = [run_depth(m, views, truth) for m in DEPTH_METHODS]
+    table = pd.DataFrame([{"scene": label, **{k: v for k, v in r.items()
+                                              if k not in ("disparity", "confidence")}}
+                          for r in depth])
+    with atomic_write(csv_depth, "w") as fh:
+        table.drop(columns="seconds").to_csv(fh, index=False, float_format="%.6g")
+    written = [Path(csv_depth)]
+    written += F.save(F.fig_peers_depth(truth, depth, label), fig_dir, "peers_depth")
+    if write_hci:
+        from gridflow.hci import write_hci as write
+
+        write(write_hci, views, disparity=truth)
+        written.append(Path(write_hci))
+    rows = []
+    for case, kw in MOTION_CASES:
+        for r in compare_motion(make_sinusoid(**MOTION_BASE, **kw)):
+            rows.append({"data": case, **r})
+    cube = load_folder(render_cube(CubeScene(), cache, progress=progress))
+    for r in compare_motion(cube, sigma=8.0, window=33):
+        rows.append({"data": "cube (spotlight)", **r})
+    motion = pd.DataFrame(rows)
+    with atomic_write(csv_motion, "w") as fh:
+        motion.drop(columns="seconds").to_csv(fh, index=False, float_format="%.6g")
+    written.append(Path(csv_motion))
+    return PeersReport(label, table, motion, written)
+
+
+def score_hci_scene(folder) -> tuple[str, pd.DataFrame]:
+    """Every depth method on an HCI scene with truth (``gt_disp_lowres.pfm``), over the
+    scene's stated disparity range where ``parameters.cfg`` gives one; on more than 5 x 5
+    views also the occlusion-aware methods on the central 5 x 5 alone (what the outer
+    views add).
+
+    Returns
+    -------
+    description : str
+    table : pandas.DataFrame
+        One row per method and views used: :func:`hci_metrics` and ``seconds``.
+    """
+    from gridflow.estimator.lightfield import stated_shears
+    from gridflow.hci import HCIError, load_hci
+
+    lf = load_hci(folder)
+    if "disparity" not in lf.truth:
+        raise HCIError(f"{folder}: no gt_disp_lowres.pfm to score against")
+    views, gt = lf.volume[0], lf.truth["disparity"]
+    n = views.shape[0]
+    shifts = stated_shears((lf.meta.get("hci") or {}).get("disp_range"))
+    kw = {} if shifts is None else {"shifts": shifts}
+    out = []
+    for m in DEPTH_METHODS:
+        r = run_depth(m, views, gt, **(kw if m.startswith("gridflow_") else {}))
+        used = (f"{n}x{n}" if m in ("gridflow_occlusion", "epi_st") else
+                f"{n}+{n}" if m == "gridflow_lines" else f"{min(5, n)}x{min(5, n)}")
+        out.append({**r, "views": used})
+    if n > 5:
+        for m in ("gridflow_occlusion", "gridflow_lines"):
+            r = run_depth(m, views, gt, grid=5, **kw)
+            out.append({**r, "views": "5x5" if m == "gridflow_occlusion" else "5+5"})
+    table = pd.DataFrame([{k: v for k, v in r.items() if k not in ("disparity", "confidence")}
+                          for r in out])
+    desc = f"{folder} ({n}x{n} views{'; shears ' + str(list(kw['shifts'])) if kw else ''})"
+    return desc, table

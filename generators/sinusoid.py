@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
+from gridflow.errors import ParameterError
 from gridflow.volume import GridVolume
 
 __all__ = ["SinusoidParams", "SyntheticVolume", "make_sinusoid", "check_params", "BRIGHTNESS_PARAMS"]
@@ -115,7 +116,7 @@ class SinusoidParams:
 
     def __post_init__(self) -> None:
         if self.texture not in TEXTURES:
-            raise ValueError(f"texture must be one of {TEXTURES}, got {self.texture!r}")
+            raise ParameterError(f"texture must be one of {TEXTURES}, got {self.texture!r}")
         for fl in fields(self):
             if fl.name == "texture":
                 continue
@@ -125,28 +126,28 @@ class SinusoidParams:
                 if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
                     raise TypeError(f"{fl.name} must be numeric, got {val!r}")
                 if not np.isfinite(v):
-                    raise ValueError(f"{fl.name} must be finite, got {val!r}")
+                    raise ParameterError(f"{fl.name} must be finite, got {val!r}")
         if len(self.grid) != 2 or len(self.spacing) != 2:
-            raise ValueError("grid is (Sy, Sx) and spacing is (ds_x, ds_y)")
+            raise ParameterError("grid is (Sy, Sx) and spacing is (ds_x, ds_y)")
         positive = {"Z0": self.Z0, "f": self.f, "wavelength_x": self.wavelength_x,
                     "wavelength_y": self.wavelength_y, "frame_interval": self.frame_interval}
         for name, v in positive.items():
             if v <= 0:
-                raise ValueError(f"{name} must be positive, got {v}")
+                raise ParameterError(f"{name} must be positive, got {v}")
         for name in ("noise", "amplitude"):
             if getattr(self, name) < 0:
-                raise ValueError(f"{name} must be non-negative")
+                raise ParameterError(f"{name} must be non-negative")
         for name in ("height", "width", "frames", "seed"):
             v = getattr(self, name)
             if int(v) != v or v < 0:
-                raise ValueError(f"{name} must be a non-negative integer, got {v}")
+                raise ParameterError(f"{name} must be a non-negative integer, got {v}")
         if self.height < 1 or self.width < 1 or self.frames < 1:
-            raise ValueError("height, width and frames must be at least 1")
+            raise ParameterError("height, width and frames must be at least 1")
         sy, sx = self.grid
         if int(sy) != sy or int(sx) != sx or sy < 1 or sx < 1:
-            raise ValueError(f"grid must be two positive integers, got {self.grid}")
+            raise ParameterError(f"grid must be two positive integers, got {self.grid}")
         if self.spacing[0] <= 0 or (sy > 1 and self.spacing[1] <= 0):
-            raise ValueError(f"camera spacing must be positive, got {self.spacing}")
+            raise ParameterError(f"camera spacing must be positive, got {self.spacing}")
 
     @property
     def ref_frame(self) -> int:
@@ -157,7 +158,7 @@ class SinusoidParams:
         """Return a copy with ``changes`` applied (validated)."""
         unknown = set(changes) - {fl.name for fl in fields(self)}
         if unknown:
-            raise ValueError(f"unknown sinusoid parameter(s): {sorted(unknown)}")
+            raise ParameterError(f"unknown sinusoid parameter(s): {sorted(unknown)}")
         d = asdict(self)
         d.update(changes)
         for key in ("grid", "spacing"):
@@ -191,7 +192,7 @@ def _intersect(p: SinusoidParams, x, y, sx: float, sy: float, t: float):
     num = p.Z0 + p.U_Z * t + p.Z_X * (sx - p.U_X * t) + p.Z_Y * (sy - p.U_Y * t)
     Z = num / denom
     if np.any(denom <= 0) or np.any(Z <= 0):
-        raise ValueError(
+        raise ParameterError(
             "the plane is seen edge-on or behind a camera for some pixel "
             f"(Z_X={p.Z_X}, Z_Y={p.Z_Y}, f={p.f}, image {p.height}x{p.width}); "
             "reduce the slopes or the image size")
@@ -225,7 +226,7 @@ def make_sinusoid(params: SinusoidParams | None = None, *, dtype=np.float64,
     p = (params or SinusoidParams()).replace(**overrides) if overrides else (params or SinusoidParams())
     dtype = np.dtype(dtype)
     if dtype not in (np.float32, np.float64):
-        raise ValueError(f"dtype must be float32 or float64, got {dtype}")
+        raise ParameterError(f"dtype must be float32 or float64, got {dtype}")
     check_params(p)
     x, y = _pixel_grid(p)
     Sy, Sx = p.grid
@@ -281,9 +282,9 @@ def add_noise(clean: SyntheticVolume, noise: float, seed: int) -> SyntheticVolum
     """
     p = clean.params
     if p.noise != 0:
-        raise ValueError(f"add_noise needs a noise-free volume; this one has noise {p.noise}")
+        raise ParameterError(f"add_noise needs a noise-free volume; this one has noise {p.noise}")
     if clean.volume.dtype != np.float64:
-        raise ValueError(f"add_noise needs a float64 rendering, got {clean.volume.dtype}")
+        raise ParameterError(f"add_noise needs a float64 rendering, got {clean.volume.dtype}")
     q = p.replace(noise=float(noise), seed=int(seed))
     check_params(q)
     if q.noise == 0:
@@ -359,7 +360,7 @@ def check_params(p: SinusoidParams) -> None:
                 h = ((p.a1 + p.a1x * Xm + p.a1y * Ym) * t
                      + (p.a2 + p.a2x * Xm + p.a2y * Ym) * t * t)
                 if np.max(np.abs(h)) > _MAX_EXPONENT:
-                    raise ValueError(
+                    raise ParameterError(
                         f"brightness exponent |h| reaches {np.max(np.abs(h)):.3g} (> "
                         f"{_MAX_EXPONENT}) at frame {k}: a1={p.a1}, a1x={p.a1x}, a1y={p.a1y}, "
                         f"a2={p.a2}, a2x={p.a2x}, a2y={p.a2y} overflow exp(); use smaller "

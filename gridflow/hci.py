@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import GridflowError
 from .volume import GridVolume, physical_memory
 
 __all__ = ["HCIError", "is_hci_scene", "load_hci", "read_pfm", "write_pfm", "read_parameters",
@@ -37,7 +38,7 @@ __all__ = ["HCIError", "is_hci_scene", "load_hci", "read_pfm", "write_pfm", "rea
 _VIEW = re.compile(r"^input_Cam(\d{3})\.png$")
 
 
-class HCIError(ValueError):
+class HCIError(GridflowError):
     """An HCI scene folder that cannot be read; the message names file and problem."""
 
 
@@ -86,7 +87,7 @@ def write_pfm(path, image: np.ndarray) -> None:
 
     a = np.asarray(image, dtype="<f4")
     if a.ndim != 2:
-        raise ValueError(f"a PFM map must be 2-D, got shape {a.shape}")
+        raise HCIError(f"a PFM map must be 2-D, got shape {a.shape}")
     with atomic_write(path) as fh:
         fh.write(f"Pf\n{a.shape[1]} {a.shape[0]}\n-1\n".encode())
         fh.write(np.ascontiguousarray(a[::-1]).tobytes())
@@ -257,7 +258,7 @@ def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
     folder = Path(folder)
     v = np.asarray(views, dtype=float)
     if v.ndim != 4 or v.shape[0] != v.shape[1] or v.shape[0] % 2 == 0:
-        raise ValueError(f"views must have shape (n, n, H, W) with n odd, got {v.shape}")
+        raise HCIError(f"views must have shape (n, n, H, W) with n odd, got {v.shape}")
     folder.mkdir(parents=True, exist_ok=True)
     n = v.shape[0]
     targets = [folder / f"input_Cam{i:03d}.png" for i in range(n * n)]

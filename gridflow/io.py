@@ -26,13 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import FileFormatError, GridflowError
 from .volume import GridVolume
 
 __all__ = ["save_volume", "load_volume", "save_estimate", "load_estimate", "atomic_write",
            "check_output", "OutputError", "check_input_file"]
 
 
-class OutputError(ValueError):
+class OutputError(GridflowError):
     """An output path that must not be written; raised before anything is written."""
 
 
@@ -97,7 +98,7 @@ def check_input_file(path, what: str = "input") -> Path:
     if not path.exists():
         raise FileNotFoundError(f"{what} {path}: no such file")
     if not path.is_file():
-        raise ValueError(f"{what} {path}: not a regular file")
+        raise FileFormatError(f"{what} {path}: not a regular file")
     return path
 
 
@@ -175,7 +176,7 @@ def _open_npz(path):
     try:
         return np.load(path, allow_pickle=False)
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise ValueError(f"{path}: not a readable .npz file ({exc})") from exc
+        raise FileFormatError(f"{path}: not a readable .npz file ({exc})") from exc
 
 
 _VOLUME_KEYS = {"volume", "focal_length", "camera_spacing", "principal_point", "meta"}
@@ -186,10 +187,10 @@ def _numbers(z, key: str, path, n: int) -> np.ndarray:
     try:
         arr = np.asarray(z[key], dtype=float).ravel()
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: '{key}' must hold numbers ({exc})") from None
+        raise FileFormatError(f"{path}: '{key}' must hold numbers ({exc})") from None
     if arr.size != n or not np.all(np.isfinite(arr)):
         want = "a finite scalar" if n == 1 else f"{n} finite numbers"
-        raise ValueError(f"{path}: '{key}' must be {want}, got {arr.tolist()}")
+        raise FileFormatError(f"{path}: '{key}' must be {want}, got {arr.tolist()}")
     return arr
 
 
@@ -209,22 +210,22 @@ def load_volume(path) -> GridVolume:
         keys = set(z.files)
         missing = {"volume", "focal_length", "camera_spacing"} - keys
         if missing:
-            raise ValueError(f"{path}: missing array(s) {sorted(missing)}; a volume file needs "
+            raise FileFormatError(f"{path}: missing array(s) {sorted(missing)}; a volume file needs "
                              "volume, focal_length, camera_spacing")
         try:
             vol = z["volume"]
         except Exception as exc:  # corrupted member
-            raise ValueError(f"{path}: cannot read 'volume' ({exc})") from exc
+            raise FileFormatError(f"{path}: cannot read 'volume' ({exc})") from exc
         if vol.ndim != 5:
-            raise ValueError(f"{path}: 'volume' must have shape (T, Sy, Sx, H, W); got {vol.shape}")
+            raise FileFormatError(f"{path}: 'volume' must have shape (T, Sy, Sx, H, W); got {vol.shape}")
         unknown = sorted(k for k in keys - _VOLUME_KEYS if not k.startswith("truth_"))
         if unknown:
-            raise ValueError(f"{path}: unknown array(s) {unknown}; a volume file holds "
+            raise FileFormatError(f"{path}: unknown array(s) {unknown}; a volume file holds "
                              f"{sorted(_VOLUME_KEYS)} and truth_<name> maps")
         f = _numbers(z, "focal_length", path, 1)
         sp = _numbers(z, "camera_spacing", path, 2)
         if not f[0] > 0:
-            raise ValueError(f"{path}: 'focal_length' must be a positive number of pixels, "
+            raise FileFormatError(f"{path}: 'focal_length' must be a positive number of pixels, "
                              f"got {f[0]}")
         H, W = vol.shape[-2:]
         if "principal_point" in keys:
@@ -237,7 +238,7 @@ def load_volume(path) -> GridVolume:
             if k.startswith("truth_"):
                 arr = z[k]
                 if arr.shape != (H, W):
-                    raise ValueError(f"{path}: '{k}' has shape {arr.shape}, expected {(H, W)}")
+                    raise FileFormatError(f"{path}: '{k}' has shape {arr.shape}, expected {(H, W)}")
                 truth[k[6:]] = arr
         meta = _meta(z, path) if "meta" in keys else {}
     return GridVolume(vol, float(f[0]), (float(sp[0]), float(sp[1])), pp, truth, meta)
@@ -247,9 +248,9 @@ def _meta(z, path) -> dict:
     try:
         meta = json.loads(str(z["meta"]))
     except (json.JSONDecodeError, ValueError) as exc:
-        raise ValueError(f"{path}: 'meta' is not a JSON string ({exc})") from None
+        raise FileFormatError(f"{path}: 'meta' is not a JSON string ({exc})") from None
     if not isinstance(meta, dict):
-        raise ValueError(f"{path}: 'meta' must hold a JSON object")
+        raise FileFormatError(f"{path}: 'meta' must hold a JSON object")
     return meta
 
 
@@ -266,12 +267,12 @@ def load_estimate(path) -> tuple[dict[str, np.ndarray], np.ndarray, dict]:
     """Read an estimate ``.npz``; returns ``(maps, interior, meta)``."""
     with _open_npz(path) as z:
         if "interior" not in z.files:
-            raise ValueError(f"{path}: not an estimate file (no 'interior' array)")
+            raise FileFormatError(f"{path}: not an estimate file (no 'interior' array)")
         maps = {k: z[k] for k in z.files if k not in ("interior", "meta")}
         interior = z["interior"].astype(bool)
         meta = _meta(z, path) if "meta" in z.files else {}
         shapes = {k: v.shape for k, v in maps.items() if v.shape != interior.shape}
         if interior.ndim != 2 or shapes:
-            raise ValueError(f"{path}: every map must have the shape of 'interior' "
+            raise FileFormatError(f"{path}: every map must have the shape of 'interior' "
                              f"{interior.shape}; these differ: {shapes}")
     return maps, interior, meta

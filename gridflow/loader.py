@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import GridflowError
 from .volume import GridVolume, physical_memory
 
 __all__ = ["load_folder", "LoaderError"]
@@ -36,7 +37,7 @@ __all__ = ["load_folder", "LoaderError"]
 _IMAGE_EXT = {".png", ".tif", ".tiff"}
 
 
-class LoaderError(ValueError):
+class LoaderError(GridflowError):
     """A camera-grid folder that cannot be loaded; the message names file and problem."""
 
 

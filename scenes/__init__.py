@@ -2,7 +2,9 @@
 its rendering into a camera-grid image folder."""
 
 from .cube import FACE_NAMES, CubeScene, cube_truth, face_interior, scene_sdl, spot_angle
-from .render import IMAGE_PATTERN, PovrayMissing, povray_binary, render_cube
+from .render import (IMAGE_PATTERN, PovrayMissing, RenderError, povray_binary, render_cube,
+                     render_cube_lightfield)
 
 __all__ = ["CubeScene", "scene_sdl", "cube_truth", "face_interior", "spot_angle", "FACE_NAMES",
-           "render_cube", "povray_binary", "PovrayMissing", "IMAGE_PATTERN"]
+           "render_cube", "render_cube_lightfield", "povray_binary", "PovrayMissing", "RenderError",
+           "IMAGE_PATTERN"]

@@ -24,6 +24,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from gridflow.errors import ParameterError
+
 __all__ = ["CubeScene", "scene_sdl", "cube_truth", "face_interior", "FACE_NAMES"]
 
 FACE_NAMES = {1: "left", 2: "right"}
@@ -67,11 +69,11 @@ class CubeScene:
 
     def __post_init__(self):
         if self.width < 8 or self.height < 8:
-            raise ValueError("image must be at least 8 x 8")
+            raise ParameterError("image must be at least 8 x 8")
         if any(int(g) != g or g < 1 or g % 2 == 0 for g in self.grid):
-            raise ValueError(f"grid {self.grid} must be odd positive sizes")
+            raise ParameterError(f"grid {self.grid} must be odd positive sizes")
         if self.frames < 1:
-            raise ValueError("frames must be >= 1")
+            raise ParameterError("frames must be >= 1")
 
     @property
     def f(self) -> float:

@@ -27,13 +27,18 @@ from gridflow.io import atomic_write
 
 from .cube import CubeScene, cube_truth, scene_sdl
 
-__all__ = ["render_cube", "povray_binary", "PovrayMissing", "IMAGE_PATTERN"]
+__all__ = ["render_cube", "render_cube_lightfield", "povray_binary", "PovrayMissing",
+           "RenderError", "IMAGE_PATTERN"]
 
 IMAGE_PATTERN = "t{t:02d}_y{sy}_x{sx}.png"
 
 
 class PovrayMissing(RuntimeError):
     """POV-Ray is not installed."""
+
+
+class RenderError(RuntimeError):
+    """POV-Ray failed on a scene file (its message is included)."""
 
 
 def povray_binary() -> str:
@@ -59,7 +64,7 @@ def _render_one(exe: str, scene: CubeScene, k: int, i: int, j: int, out: Path,
     res = subprocess.run(cmd, capture_output=True, text=True, cwd=tmpdir)
     if res.returncode != 0 or not tmp_png.exists():
         tmp_png.unlink(missing_ok=True)
-        raise RuntimeError(f"POV-Ray failed on {out.name} (exit {res.returncode}):\n"
+        raise RenderError(f"POV-Ray failed on {out.name} (exit {res.returncode}):\n"
                            + (res.stderr or res.stdout)[-2000:])
     os.replace(tmp_png, out)
     return time.perf_counter() - t0
@@ -96,6 +101,29 @@ def render_cube(scene: CubeScene, root, *, workers: int | None = None,
         _remove_leftovers(folder)
         _render_all(exe, scene, folder, manifest, workers, progress)
     return folder
+
+
+def render_cube_lightfield(cache, *, size: int = 256, grid: int = 5, spacing: float = 10.0,
+                    focus: float = 420.0, progress: bool = True):
+    """The cube as a static light field with large disparities (HCI-style geometry).
+
+    One frame, no spotlight, ``grid x grid`` cameras ``spacing`` mm apart converging at
+    ``focus`` mm: with the defaults the cube's disparities run from -0.6 to +3.0 px per
+    view (the front corner at +3).
+
+    Returns
+    -------
+    views : ndarray, shape (grid, grid, size, size)
+    disparity : ndarray, shape (size, size)
+        True disparity (px per camera step, HCI sign), NaN off the cube.
+    scene : CubeScene
+    """
+    from gridflow.loader import load_folder
+
+    scene = CubeScene(width=size, height=size, grid=(grid, grid), spacing=(spacing, spacing),
+                      frames=1, static=True, spotlight=False, focus_distance=focus)
+    data = load_folder(render_cube(scene, cache, progress=progress))
+    return data.volume[0], scene.disparity(cube_truth(scene)["Z"]), scene
 
 
 @contextmanager

@@ -28,7 +28,8 @@ import pandas as pd
 import pytest
 
 from gridflow.bench.claims import BREAK, check_claims
-from gridflow.bench.sweep import SweepSpec, run_sweep
+from gridflow.bench.spec import SweepSpec
+from gridflow.bench.sweep import run_sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 STORED = ROOT / "results" / "sweep_paper.csv"

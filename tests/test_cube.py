@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from gridflow.bench.cli import main
-from gridflow.bench.cube import cube_table, face_interior, observation11, run_cube
+from gridflow.bench.cube_experiment import cube_table, observation11, run_cube
+from gridflow.scenes import face_interior
 from gridflow.io import load_estimate
 from gridflow.loader import load_folder
 from gridflow.scenes.render import PovrayMissing, povray_binary, render_cube

@@ -25,7 +25,8 @@ import pandas as pd
 import pytest
 
 from gridflow.bench.cli import main
-from gridflow.bench.sweep import SpecError, SweepSpec, run_sweep
+from gridflow.bench.spec import SpecError, SweepSpec
+from gridflow.bench.sweep import run_sweep
 from gridflow.estimator import EstimatorSettings, InputError, estimate
 from gridflow.generators import make_sinusoid
 from gridflow.io import OutputError, atomic_write, check_output, save_volume
@@ -416,7 +417,8 @@ def test_resume_never_mixes_parts_of_other_code_specs_or_versions(tmp_path, monk
 def test_the_resume_key_covers_every_module_a_row_runs():
     """Run one point in a fresh interpreter and list the gridflow modules it loaded: each
     must be fingerprinted (a package's entry covers its folder)."""
-    code = ("import sys, json; from gridflow.bench.sweep import SweepSpec, run_point, "
+    code = ("import sys, json; from gridflow.bench.spec import SweepSpec; "
+            "from gridflow.bench.sweep import run_point, "
             "_ROW_SOURCES; spec = SweepSpec.from_dict(json.loads(sys.argv[1])); "
             "run_point(spec, spec.points()[0]); "
             "print(json.dumps([sorted(m for m in sys.modules if m.startswith('gridflow')), "
@@ -534,7 +536,7 @@ def test_no_process_outlives_a_killed_sweep(tmp_path):
 
 @pytest.mark.slow
 def test_dask_results_come_back_to_the_client(tmp_path, monkeypatch):
-    from gridflow.bench.distributed import make_client
+    from gridflow.bench.executors import make_client
 
     spec = SweepSpec.from_dict(SPEC_OK)
     ref = tmp_path / "ref.csv"
@@ -557,7 +559,7 @@ def test_dask_results_come_back_to_the_client(tmp_path, monkeypatch):
 
 
 def test_a_port_that_is_not_a_scheduler_fails_within_the_timeout():
-    from gridflow.bench.distributed import make_client
+    from gridflow.bench.executors import make_client
 
     srv = socket.socket()
     srv.bind(("127.0.0.1", 0))

@@ -222,7 +222,7 @@ def test_occlusion_aware_shears_keep_edges_sharp():
     3.3 %; 0 % far from the edges for both occlusion runs.  The data are noise-free and
     deterministic; the bounds sit between the measured values, so the test fails when
     an ingredient stops working, not on round-off."""
-    from gridflow.bench.peers import hci_metrics
+    from gridflow.bench.metrics import hci_metrics
     from gridflow.estimator.lightfield import estimate_refocused
 
     views, truth = layered_views()
@@ -275,7 +275,8 @@ def test_line_subgrids_see_between_thin_stripes():
 
 
 def test_hci_metrics_and_epi_peer():
-    from gridflow.bench.peers import epi_structure_tensor, hci_metrics
+    from gridflow.bench.metrics import hci_metrics
+    from gridflow.bench.peers import epi_structure_tensor
 
     views, truth = plane_views(n=9, size=96, d0=0.4)
     d, coh = epi_structure_tensor(views)

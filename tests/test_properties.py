@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from gridflow.estimator import InputError, estimate
 from gridflow.generators import SinusoidParams, make_sinusoid
-from gridflow.bench.sweep import SpecError, SweepSpec
+from gridflow.bench.spec import SpecError, SweepSpec
 
 TRIED = Counter()     # reported by conftest.pytest_terminal_summary
 

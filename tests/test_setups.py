@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from gridflow.bench.setups import SETUPS, get_setup
-from gridflow.bench.sweep import SpecError, SweepSpec, run_point
+from gridflow.bench.spec import SpecError, SweepSpec
+from gridflow.bench.sweep import run_point
 from gridflow.estimator.models import get_model
 from gridflow.estimator.disentangle import disentangle
 from gridflow.generators import SinusoidParams, make_sinusoid

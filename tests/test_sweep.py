@@ -5,7 +5,8 @@ import pytest
 
 import gridflow.bench.sweep as sweep_mod
 from gridflow.bench.cli import main
-from gridflow.bench.sweep import SpecError, SweepSpec, run_point, run_sweep
+from gridflow.bench.spec import SpecError, SweepSpec, shipped_specs
+from gridflow.bench.sweep import run_point, run_sweep
 
 SMALL = {"height": 80, "width": 80, "frames": 7}
 
@@ -52,7 +53,7 @@ def test_repository_specs_are_valid():
 
 
 def test_shipped_specs_are_found_by_name(tmp_path, monkeypatch):
-    assert set(sweep_mod.shipped_specs()) == {"paper", "paper_setup", "smoke"}
+    assert set(shipped_specs()) == {"paper", "paper_setup", "smoke"}
     assert SweepSpec.from_toml("paper") == SweepSpec.from_toml("bench/sweeps/paper.toml")
     # a file of that name in the working folder wins over the shipped spec
     monkeypatch.chdir(tmp_path)

@@ -1,12 +1,19 @@
-"""The cube experiment (Sec. 4.2): per-face error table and Fig. 1.
+"""The cube experiment (Sec. 4.2): per-face error table, observation 11 and Fig. 1.
 
-``run_cube`` estimates the three models on a rendered camera-grid folder and scores each
-visible face's interior (away from edges) with Eq. 22: Q_rel(U_Z), Q_abs(U_X), Q_abs(U_Y),
-Q_rel(Z), Q_abs(Z_X), Q_abs(Z_Y), plus the median model error.  ``fig1`` draws the paper's
-Fig. 1 from the same estimates.
+:func:`run_cube_experiment` is what ``gridflow cube`` does: render the scene (cached),
+estimate the three models (:func:`run_cube`), score each visible face's interior (away
+from edges) and its regions with Eq. 22 (:func:`cube_table`: Q_rel(U_Z), Q_abs(U_X),
+Q_abs(U_Y), Q_rel(Z), Q_abs(Z_X), Q_abs(Z_Y), the median model error), check observation
+11 (:func:`observation11`), draw Fig. 1 (:func:`fig1`) and write the table, the figure
+and the documentation's cube section.  (The scene itself, its truth and its rendering
+are :mod:`gridflow.scenes`.)
 """
 
 from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -16,8 +23,8 @@ from gridflow.scenes import FACE_NAMES, CubeScene, face_interior, spot_angle
 
 from .metrics import q_abs, q_rel
 
-__all__ = ["run_cube", "cube_table", "fig1", "observation11", "face_interior", "regions",
-           "render_markdown"]
+__all__ = ["run_cube_experiment", "CubeReport", "run_cube", "cube_table", "fig1",
+           "observation11", "regions", "cube_markdown"]
 
 COLUMNS = ["face", "region", "model", "n_pixels", "n_valid", "q_rel_Uz", "q_abs_Ux", "q_abs_Uy",
            "q_rel_Z", "q_abs_Zx", "q_abs_Zy", "median_model_error", "median_rel_Uz",
@@ -97,7 +104,7 @@ def cube_table(data, results, margin: float | None = None) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=COLUMNS)
 
 
-def render_markdown(table: pd.DataFrame, checks: list[dict], source: str) -> str:
+def cube_markdown(table: pd.DataFrame, checks: list[dict], source: str) -> str:
     """The cube's per-face, per-region table and observation 11's checks, as markdown."""
     cols = ["face", "region", "model", "n_pixels", "q_rel_Uz", "q_abs_Ux", "q_abs_Uy",
             "q_abs_Zx", "median_model_error", "median_rel_Uz"]
@@ -261,27 +268,79 @@ def fig1(data, results, step: int = 12, scale: float = 135.0, margin: float | No
     return fig
 
 
-def cube_lightfield(cache, *, size: int = 256, grid: int = 5, spacing: float = 10.0,
-                    focus: float = 420.0, progress: bool = True):
-    """The cube as a static light field with large disparities (HCI-style geometry).
+@dataclass
+class CubeReport:
+    """What :func:`run_cube_experiment` did.
 
-    One frame, no spotlight, ``grid x grid`` cameras ``spacing`` mm apart converging at
-    ``focus`` mm: with the defaults the cube's disparities run from -0.6 to +3.0 px per
-    view (the front corner at +3).
-
-    Returns
-    -------
-    views : ndarray, shape (grid, grid, size, size)
-    disparity : ndarray, shape (size, size)
-        True disparity (px per camera step, HCI sign), NaN off the cube.
-    scene : CubeScene
+    Attributes
+    ----------
+    folder : Path
+        The rendered camera-grid folder (the render cache).
+    rendered, render_seconds
+        Images rendered for the scene and their time (from its manifest).
+    seconds_render, seconds_estimate : float
+        This run's time for rendering (or finding the cache) and estimating.
+    table : pandas.DataFrame
+        :func:`cube_table`.
+    checks : list of dict
+        :func:`observation11`.
+    written : list of Path
     """
+
+    folder: Path
+    rendered: object
+    render_seconds: object
+    seconds_render: float
+    seconds_estimate: float
+    table: pd.DataFrame
+    checks: list
+    written: list
+
+
+def run_cube_experiment(scene: CubeScene, cache, *, csv, fig_dir, doc=None,
+                        sigma: float = 8.0, window: int = 33,
+                        progress: bool = True) -> CubeReport:
+    """Render ``scene`` into ``cache`` (or find it there), estimate, score, draw, write.
+
+    Parameters
+    ----------
+    scene : CubeScene
+    cache : path
+        Render cache (``work/cube``).
+    csv : path
+        The per-face table (``results/cube.csv``), written atomically.
+    fig_dir : path
+        Where ``fig1.png`` and ``fig1.pdf`` go.
+    doc : path, optional
+        A markdown file whose ``cube`` block is rewritten (``docs/reproduction.md``).
+    sigma, window
+        The estimator's window (the 55-px left face of a 256-px image needs a smaller one
+        than the sinusoid's 16).
+    progress : bool
+        The render's progress bar.
+    """
+    from gridflow.io import atomic_write
     from gridflow.loader import load_folder
-    from gridflow.scenes import CubeScene
-    from gridflow.scenes.cube import cube_truth
     from gridflow.scenes.render import render_cube
 
-    scene = CubeScene(width=size, height=size, grid=(grid, grid), spacing=(spacing, spacing),
-                      frames=1, static=True, spotlight=False, focus_distance=focus)
-    data = load_folder(render_cube(scene, cache, progress=progress))
-    return data.volume[0], scene.disparity(cube_truth(scene)["Z"]), scene
+    from . import figures as F
+    from .markdown import rewrite_block
+
+    t0 = time.perf_counter()
+    folder = render_cube(scene, cache, progress=progress)
+    data = load_folder(folder)
+    src = data.meta.get("source") or {}
+    t1 = time.perf_counter()
+    results = run_cube(data, sigma=sigma, window=window)
+    t2 = time.perf_counter()
+    table = cube_table(data, results)
+    checks = observation11(table)
+    with atomic_write(csv, "w") as fh:
+        table.to_csv(fh, index=False, float_format="%.6g")
+    written = [Path(csv)]
+    if doc:
+        written.append(rewrite_block(doc, "cube", cube_markdown(
+            table, checks, f"the scene `{folder.name}`, sigma {sigma:g}, {window} taps")))
+    written += F.save(fig1(data, results), fig_dir, "fig1")
+    return CubeReport(folder, src.get("rendered"), src.get("render_seconds"), t1 - t0,
+                      t2 - t1, table, checks, written)

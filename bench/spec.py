@@ -1,0 +1,312 @@
+"""Sweep specs: what a parameter sweep over sinusoid volumes runs, checked before it runs.
+
+A spec (TOML; the shipped ones are ``bench/sweeps/*.toml``, found by name: ``paper``)
+names the models, noise levels, seeds, base generator parameters, estimator settings and
+one or more axes (a parameter and its values).  Every (axis, value, noise, seed) is a
+:class:`Point`: one volume, on which all models run with a shared structure tensor.
+:meth:`SweepSpec.validate` checks everything that can be checked without running:
+unknown keys, repeated values, non-integral sizes, ``[base]`` settings the sweep itself
+sets, estimator settings, and that every point's volume fits in memory.  Running a spec
+is :mod:`gridflow.bench.sweep`'s business.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from gridflow.errors import GridflowError
+from gridflow.estimator import MODELS, EstimatorSettings, InputError
+from gridflow.generators import SinusoidParams, check_params
+from gridflow.volume import physical_memory
+
+from .setups import get_setup
+
+__all__ = ["SweepSpec", "Point", "SpecError", "shipped_specs", "resolve_spec", "SWEEPABLE"]
+
+_SWEEPABLE = {f.name for f in fields(SinusoidParams)} - {"grid", "spacing", "seed", "noise",
+                                                           "texture"}
+SWEEPABLE = tuple(sorted(_SWEEPABLE))
+# generator parameters that are integers (sizes); spec values for them must be integral
+_INTEGER = {f.name for f in fields(SinusoidParams) if f.type in ("int", int)}
+_SECTION_KEYS = {"sweep": {"name", "models", "noise", "seeds", "setup"}, "base": None,
+                 "estimator": None, "axis": {"param", "values"}}
+
+
+class SpecError(GridflowError):
+    """A sweep spec that cannot run; raised before any work starts."""
+
+
+@dataclass(frozen=True)
+class Point:
+    """One volume of a sweep."""
+
+    param: str
+    value: float
+    noise: float
+    seed: int
+
+
+@dataclass
+class SweepSpec:
+    """A parsed, validated sweep.
+
+    Attributes
+    ----------
+    name : str
+    models : list of str
+    noise : list of float
+    seeds : list of int
+    base : dict
+        Generator parameters (``SinusoidParams`` fields) common to all points.
+    estimator : dict
+        Estimator settings (``EstimatorSettings`` fields).
+    axes : list of (str, list of float)
+    setup : str
+        The named setup (:mod:`gridflow.bench.setups`) whose generator parameters,
+        estimator settings and brightness reference the spec starts from; ``base`` and
+        ``estimator`` override them.
+    """
+
+    name: str
+    models: list[str]
+    noise: list[float]
+    seeds: list[int]
+    base: dict = field(default_factory=dict)
+    estimator: dict = field(default_factory=dict)
+    axes: list[tuple[str, list[float]]] = field(default_factory=list)
+    setup: str = "gridflow"
+
+    @classmethod
+    def from_toml(cls, path) -> "SweepSpec":
+        """Read a spec from a TOML file, or a spec shipped with gridflow by its name
+        (``"paper"``: see :func:`shipped_specs`)."""
+        path = resolve_spec(path)
+        try:
+            raw = tomllib.loads(path.read_text())
+        except FileNotFoundError:
+            raise SpecError(f"{path}: no such sweep spec") from None
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise SpecError(f"{path}: not valid TOML ({exc})") from None
+        return cls.from_dict(raw, source=str(path))
+
+    @classmethod
+    def from_dict(cls, raw: dict, source: str = "spec") -> "SweepSpec":
+        """Build and validate a spec from parsed TOML; every key is used or refused."""
+        if not isinstance(raw, dict):
+            raise SpecError(f"{source}: a spec is a table of sections")
+        unknown = set(raw) - set(_SECTION_KEYS)
+        if unknown:
+            raise SpecError(f"{source}: unknown section(s) {sorted(unknown)}; expected "
+                            "[sweep], [base], [estimator], [[axis]]")
+        sw = raw.get("sweep", {})
+        for section in ("sweep", "base", "estimator"):
+            if not isinstance(raw.get(section, {}), dict):
+                raise SpecError(f"{source}: [{section}] must be a table")
+        bad = set(sw) - _SECTION_KEYS["sweep"]
+        if bad:
+            raise SpecError(f"{source}: [sweep]: unknown key(s) {sorted(bad)}; expected "
+                            f"{sorted(_SECTION_KEYS['sweep'])}")
+        axes_raw = raw.get("axis", [])
+        if not isinstance(axes_raw, list) or not all(isinstance(a, dict) for a in axes_raw):
+            raise SpecError(f"{source}: [[axis]] must be an array of tables")
+        axes = []
+        for n, a in enumerate(axes_raw, 1):
+            bad = set(a) - _SECTION_KEYS["axis"]
+            if bad:
+                raise SpecError(f"{source}: [[axis]] number {n}: unknown key(s) {sorted(bad)}; "
+                                "expected 'param' and 'values'")
+            axes.append((a.get("param"), a.get("values")))
+        spec = cls(name=sw.get("name", "sweep"),
+                   models=_list(sw.get("models", list(MODELS)), str, "[sweep] models", source),
+                   noise=_list(sw.get("noise", [0.0]), float, "[sweep] noise", source),
+                   seeds=_list(sw.get("seeds", [0]), int, "[sweep] seeds", source),
+                   base=dict(raw.get("base", {})), estimator=dict(raw.get("estimator", {})),
+                   axes=axes, setup=sw.get("setup", "gridflow"))
+        spec.validate(source)
+        return spec
+
+    def validate(self, source: str = "spec") -> None:
+        """Check everything that can be checked before running; raise :class:`SpecError`.
+
+        Integral values of integer generator parameters (``height``, ``width``,
+        ``frames``) are converted to ``int`` in place.
+        """
+        try:
+            get_setup(self.setup)
+        except ValueError as exc:
+            raise SpecError(f"{source}: [sweep] setup: {exc}") from None
+        if not isinstance(self.name, str) or not self.name.strip():
+            raise SpecError(f"{source}: [sweep] name must be a non-empty string, got "
+                            f"{self.name!r}")
+        bad = [m for m in self.models if m not in MODELS]
+        if bad or not self.models:
+            raise SpecError(f"{source}: unknown or no model(s) {bad}; expected some of {MODELS}")
+        for key, values in (("models", self.models), ("noise", self.noise),
+                            ("seeds", self.seeds)):
+            if len(set(values)) != len(values):
+                raise SpecError(f"{source}: [sweep] {key} repeats a value: {values}")
+        if not self.noise or any(not _real(n) or n < 0 for n in self.noise):
+            raise SpecError(f"{source}: noise must be a non-empty list of values >= 0")
+        if not self.seeds or any(not _integer(s) or s < 0 for s in self.seeds):
+            raise SpecError(f"{source}: seeds must be a non-empty list of integers >= 0")
+        if not self.axes:
+            raise SpecError(f"{source}: no [[axis]] to sweep")
+        swept = [p for p, _ in self.axes]
+        for i, (param, values) in enumerate(self.axes):
+            if param not in _SWEEPABLE:
+                raise SpecError(f"{source}: unknown parameter {param!r}; sweepable: "
+                                f"{sorted(_SWEEPABLE)}")
+            if swept.count(param) > 1:
+                raise SpecError(f"{source}: parameter {param!r} has more than one [[axis]]; "
+                                "give it one axis with all its values")
+            if not isinstance(values, list) or not values:
+                raise SpecError(f"{source}: axis {param!r} has an empty or missing 'values' list")
+            self.axes[i] = (param, [_value(param, v, f"axis {param!r}", source)
+                                    for v in values])
+            if len(set(self.axes[i][1])) != len(values):
+                raise SpecError(f"{source}: axis {param!r} repeats values")
+        for key in ("noise", "seed"):
+            if key in self.base:
+                raise SpecError(f"{source}: [base] {key} is set by [sweep] "
+                                f"{'noise' if key == 'noise' else 'seeds'}; remove it from "
+                                "[base]")
+        overridden = sorted(set(self.base) & set(swept))
+        if overridden:
+            raise SpecError(f"{source}: [base] sets {overridden}, which an [[axis]] sweeps; "
+                            "remove it from [base]")
+        known = {f.name for f in fields(SinusoidParams)}
+        unknown = sorted(set(self.base) - known)
+        if unknown:
+            raise SpecError(f"{source}: [base]: unknown sinusoid parameter(s) {unknown}")
+        self.base = {k: _value(k, v, "[base]", source) for k, v in self.base.items()}
+        try:
+            base = self.base_params()
+        except (TypeError, ValueError) as exc:
+            raise SpecError(f"{source}: [base]: {exc}") from None
+        try:
+            EstimatorSettings(**self.estimator_settings())
+        except (TypeError, InputError) as exc:
+            raise SpecError(f"{source}: [estimator]: {exc}") from None
+        for p in self.points():
+            params = self.params(p, base)
+            _check_size(params, f"{source}: {p.param} = {p.value}")
+            try:
+                check_params(params)
+            except (TypeError, ValueError) as exc:
+                raise SpecError(f"{source}: {p.param} = {p.value}: {exc}") from None
+
+    def points(self) -> list[Point]:
+        """All points in the canonical order of the output CSV."""
+        return [Point(param, float(v), float(n), int(s))
+                for param, values in self.axes for v in values
+                for n in self.noise for s in self.seeds]
+
+    def base_params(self) -> SinusoidParams:
+        """Generator parameters common to all points: the setup's, then ``[base]``."""
+        return SinusoidParams().replace(**{**get_setup(self.setup).base, **self.base})
+
+    def estimator_settings(self) -> dict:
+        """Estimator settings: the setup's, then ``[estimator]``."""
+        return {**get_setup(self.setup).estimator, **self.estimator}
+
+    def params(self, point: Point, base: SinusoidParams | None = None) -> SinusoidParams:
+        base = base or self.base_params()
+        value = int(point.value) if point.param in _INTEGER else point.value
+        return base.replace(**{point.param: value, "noise": point.noise, "seed": point.seed})
+
+    def as_dict(self) -> dict:
+        """The spec as plain data (what the provenance sidecar and the resume key record)."""
+        return {"name": self.name, "setup": self.setup, "models": list(self.models),
+                "noise": list(self.noise),
+                "seeds": list(self.seeds), "base": dict(self.base),
+                "estimator": dict(self.estimator),
+                "axes": [{"param": p, "values": list(v)} for p, v in self.axes]}
+
+
+def _real(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
+
+
+def _integer(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _list(values, kind, what: str, source: str) -> list:
+    """A spec list of ``kind`` (str, float or int), or a SpecError naming the key."""
+    if not isinstance(values, list):
+        raise SpecError(f"{source}: {what} must be a list, got {values!r}")
+    out = []
+    for v in values:
+        if kind is str and isinstance(v, str):
+            out.append(v)
+        elif kind is float and _real(v):
+            out.append(float(v))
+        elif kind is int and (_integer(v) or (_real(v) and float(v).is_integer())):
+            out.append(int(v))
+        else:
+            raise SpecError(f"{source}: {what} must hold {kind.__name__} values, got {v!r}")
+    return out
+
+
+def _value(param: str, v, what: str, source: str):
+    """A generator parameter's value from a spec: numbers only, integral for sizes."""
+    if isinstance(v, list) and param in ("grid", "spacing"):
+        return [_value(param + "[]", x, what, source) for x in v]
+    if param == "texture":
+        if not isinstance(v, str):
+            raise SpecError(f"{source}: {what}: texture must be a string, got {v!r}")
+        return v
+    if not _real(v):
+        raise SpecError(f"{source}: {what}: {param} must be a finite number, got {v!r}")
+    if param in _INTEGER or param == "grid[]":
+        if not float(v).is_integer():
+            raise SpecError(f"{source}: {what}: {param} must be an integer, got {v!r}")
+        return int(v)
+    return float(v)
+
+
+def _check_size(p: SinusoidParams, where: str) -> None:
+    """Refuse a point whose volume would not fit in this machine's memory."""
+    Sy, Sx = p.grid
+    need = 8 * p.frames * Sy * Sx * p.height * p.width
+    have = physical_memory()
+    if have is not None and need > 0.25 * have:
+        raise SpecError(f"{where}: the volume ({p.frames} x {Sy} x {Sx} x {p.height} x "
+                        f"{p.width}) needs {need / 2**30:.1f} GiB, more than a quarter of "
+                        f"this machine's {have / 2**30:.1f} GiB")
+
+
+def shipped_specs() -> dict[str, Path]:
+    """The sweep specs installed with gridflow (``bench/sweeps/*.toml``), by name."""
+    from importlib.resources import files
+
+    folder = files("gridflow.bench") / "sweeps"
+    return {Path(f.name).stem: Path(str(f)) for f in folder.iterdir()
+            if f.name.endswith(".toml")}
+
+
+def resolve_spec(spec) -> Path:
+    """The file of a sweep spec given as a path or as the name of a shipped spec.
+
+    An existing file wins; a bare name (no folder, no ``.toml``) is looked up among
+    :func:`shipped_specs`.
+
+    Raises
+    ------
+    SpecError
+        Neither a file nor a shipped spec's name.
+    """
+    path = Path(spec)
+    if path.is_file():
+        return path
+    if path.suffix == "" and path.name == str(spec):
+        shipped = shipped_specs()
+        if str(spec) in shipped:
+            return shipped[str(spec)]
+        raise SpecError(f"{spec}: no such sweep spec file, and not the name of a shipped "
+                        f"spec (shipped: {', '.join(sorted(shipped))})")
+    raise SpecError(f"{spec}: no such sweep spec")

@@ -20,19 +20,30 @@ help:
 	@echo "make bench     run the throughput benchmark"
 	@echo "make clean     remove caches (never results of long runs)"
 
-$(STAMP): pyproject.toml requirements.lock
-	@echo "setting up $(VENV): the pinned dependencies of requirements.lock and gridflow (once; 1-2 min) ..."
+# gridflow is installed in strict editable mode: a tree of links to the repository's files
+# under build/ (static tools can follow it; the default mode's import hook they cannot).
+# A module added or removed needs the tree made again: MODULES lists them, and the list
+# is rewritten (re-triggering the install) only when it changes.
+MODULES     := $(sort $(wildcard base/*.py estimator/*.py generators/*.py scenes/*.py \
+                 bench/*.py bench/sweeps/*.toml))
+MODULE_LIST := build/.modules
+$(shell mkdir -p build && echo "$(MODULES)" | cmp -s - $(MODULE_LIST) || echo "$(MODULES)" > $(MODULE_LIST))
+
+$(STAMP): pyproject.toml requirements.lock $(MODULE_LIST)
+	@echo "setting up $(VENV): the pinned dependencies of requirements.lock and gridflow (1-2 min the first time) ..."
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	@$(PY) -m pip install -q --upgrade pip
 	@$(PY) -m pip install -q -r requirements.lock
-	@$(PY) -m pip install -q --no-deps --no-build-isolation -e .
+	@$(PY) -m pip install --no-deps --no-build-isolation -e . --config-settings editable_mode=strict \
+	  > $(VENV)/install.log 2>&1 || { cat $(VENV)/install.log; exit 1; }
 	@touch $@
 	@echo "$(VENV) is ready"
 
 # numba compiles the estimator's kernels on first use (20-40 s) and caches them on disk;
 # paying that here, with a message, keeps the first estimate from a long silence.
 KERNELS := $(VENV)/.kernels
-$(KERNELS): estimator/_kernels.py estimator/_solver.py | $(STAMP)
+# (numba caches them beside the linked sources, so a new link tree needs them again)
+$(KERNELS): estimator/_kernels.py estimator/_solver.py $(STAMP)
 	@$(PY) -m gridflow.estimator.warmup
 	@touch $@
 
@@ -41,8 +52,8 @@ env: $(STAMP) $(KERNELS)
 # --- results and figures -----------------------------------------------------------------
 # what a sweep's rows depend on (the modules its resume key fingerprints); the CLI is not
 # among them: it only parses and prints
-NUMERICS  := $(wildcard estimator/*.py generators/*.py) gridflow/volume.py gridflow/io.py \
-             gridflow/errors.py bench/metrics.py bench/spec.py bench/sweep.py bench/executors.py \
+NUMERICS  := $(wildcard estimator/*.py generators/*.py) base/volume.py base/io.py \
+             base/errors.py bench/metrics.py bench/spec.py bench/sweep.py bench/executors.py \
              bench/setups.py
 SWEEP_CSV := results/sweep_paper.csv
 SETUP_CSV := results/sweep_paper_setup.csv
@@ -51,7 +62,7 @@ FIGS      := $(FIGDIR)/fig1.png $(FIGDIR)/fig2.png $(FIGDIR)/fig3.png $(FIGDIR)/
              $(FIGDIR)/fig3_paper_setup.png $(FIGDIR)/fig4_paper_setup.png
 OUTPUTS   := $(FIGS) results/claims.csv results/claims_paper_setup.csv results/cube.csv \
              results/peers_depth.csv
-CUBE_SRC  := $(wildcard estimator/*.py scenes/*.py) gridflow/loader.py gridflow/errors.py \
+CUBE_SRC  := $(wildcard estimator/*.py scenes/*.py) base/loader.py base/errors.py \
              bench/cube_experiment.py bench/figures.py bench/metrics.py bench/markdown.py
 
 figures: $(STAMP) $(KERNELS)
@@ -116,8 +127,9 @@ baseline: $(STAMP)
 test: $(STAMP) $(KERNELS) povray
 	$(PY) -m pytest
 
+# build/ holds the editable install's link tree: removing it means installing again
 clean:
-	rm -rf .pytest_cache build *.egg-info
+	rm -rf .pytest_cache build *.egg-info $(STAMP) $(KERNELS)
 	find . -name __pycache__ -not -path "./$(VENV)/*" -prune -exec rm -rf {} +
 
 distclean: clean

@@ -1,8 +1,9 @@
-"""The package layout: one installed namespace, and layers whose imports only run downwards.
+"""The package layout: one installed namespace, and layers whose imports only run downwards
+and never in a circle.
 
 The layers, bottom to top (README, *Layout*):
 
-    gridflow/ (shared base: volume container, file formats)   estimator/ (numerics)
+    base/ -> gridflow (shared base: volume container, file formats)   estimator/ (numerics)
     generators/, scenes/ (data sources)
     bench/ (benchmark) and bench/cli.py (the CLI, imported by nothing)
 
@@ -11,7 +12,9 @@ functions), so a violation fails here whether or not a test happens to execute i
 install test builds a wheel from a copy of the repository's files and installs it, without
 its dependencies, into a fresh virtual environment outside the repository; the
 dependencies are lent from the test environment by a ``.pth`` line, so the test needs no
-network and installs nothing else.
+network and installs nothing else.  The import graph of that installed package (a node
+per module, an edge per import statement that names another of its modules) must have no
+cycle and no edge upwards.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 # folder -> (installed name, project subpackages it may import)
 LAYERS = {
-    "gridflow": ("gridflow", set()),
+    "base": ("gridflow", set()),
     "estimator": ("gridflow.estimator", set()),
     "generators": ("gridflow.generators", {"gridflow"}),
     "scenes": ("gridflow.scenes", {"gridflow"}),
@@ -66,8 +69,8 @@ def _imports(path: Path, package: str) -> set[str]:
 def _layer_of(name: str) -> str | None:
     """The project layer an imported name belongs to, or None for other libraries."""
     parts = name.split(".")
-    if parts[0] in ("estimator", "generators", "scenes", "bench"):
-        return "old top-level package " + parts[0]
+    if parts[0] in ("estimator", "generators", "scenes", "bench", "base"):
+        return "top-level name of a repository folder, " + parts[0]
     if parts[0] != "gridflow":
         return None
     if len(parts) > 1 and parts[1] in ("estimator", "generators", "scenes", "bench"):
@@ -186,7 +189,7 @@ def test_installed_imports(installed):
              "from gridflow.generators import make_sinusoid; print(gridflow.__file__)")
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip().startswith(str(site)), r.stdout
-    for name in ("estimator", "generators", "scenes", "bench"):
+    for name in ("estimator", "generators", "scenes", "bench", "base"):
         r = _run(installed, "-c", f"import {name}")
         assert r.returncode != 0 and "ModuleNotFoundError" in r.stderr, (name, r.stderr)
 
@@ -210,3 +213,140 @@ def test_installed_cli_runs_outside_the_repository(installed):
     assert (work / "figs" / "fig3.png").is_file()
     r = _run(installed, gridflow, "sweep", "nosuchspec", "-o", "x.csv")
     assert r.returncode == 2 and "shipped: paper, paper_setup, smoke" in r.stderr, r.stderr
+
+
+# --- the import graph of the installed package -----------------------------------------------
+
+# layer of each subpackage of the installed namespace (a module may import its own layer's
+# modules and those of lower layers; base and estimator import nothing of the project)
+_RANK = {"gridflow": 0, "gridflow.estimator": 0, "gridflow.generators": 1,
+         "gridflow.scenes": 1, "gridflow.bench": 2, "gridflow.bench.cli": 3}
+# within a layer, the parts that may not import each other
+_APART = [{"gridflow", "gridflow.estimator"}, {"gridflow.generators", "gridflow.scenes"}]
+
+
+def import_graph(package_dir: Path, package: str = "gridflow") -> dict[str, set[str]]:
+    """``{module: modules it imports}`` over the ``.py`` files of an installed package.
+
+    Every import statement counts, also those inside functions.  ``from P import n`` is an
+    edge to ``P.n`` where that is a module of the package, else to ``P``; ``import a.b.c``
+    to the longest prefix that is one.  A submodule's implicit import of its parent
+    package is not an edge (every module would otherwise import its own ``__init__``)."""
+    files = {}
+    for f in sorted(Path(package_dir).rglob("*.py")):
+        rel = f.relative_to(package_dir).with_suffix("")
+        parts = [package] + list(rel.parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        files[".".join(parts)] = f
+    graph = {}
+    for mod, f in files.items():
+        is_pkg = f.name == "__init__.py"
+        pkg = mod if is_pkg else mod.rpartition(".")[0]
+        edges = set()
+        for node in ast.walk(ast.parse(f.read_text(), filename=str(f))):
+            targets = []
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = pkg.split(".")[:len(pkg.split(".")) - node.level + 1]
+                    src = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    src = node.module
+                targets = [f"{src}.{a.name}" if f"{src}.{a.name}" in files else src
+                           for a in node.names]
+            for t in targets:
+                while t and t not in files:
+                    t = t.rpartition(".")[0]
+                if t and t != mod:
+                    edges.add(t)
+        graph[mod] = edges
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The import cycles of ``graph``: one per strongly connected component of more than
+    one module (Tarjan's algorithm), as the component's modules in order."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def _part(mod: str) -> str:
+    """The subpackage (layer entry of _RANK) a module belongs to."""
+    best = "gridflow"
+    for name in _RANK:
+        if (mod == name or mod.startswith(name + ".")) and len(name) > len(best):
+            best = name
+    return best
+
+
+def upward_edges(graph: dict[str, set[str]]) -> list[str]:
+    """Edges from a module to one of a higher layer, or between parts kept apart."""
+    bad = []
+    for a, targets in graph.items():
+        pa = _part(a)
+        for b in sorted(targets):
+            pb = _part(b)
+            if pa == pb:
+                continue
+            if _RANK[pb] > _RANK[pa] or any({pa, pb} <= g for g in _APART):
+                bad.append(f"{a} -> {b}")
+    return bad
+
+
+def test_installed_import_graph_has_no_cycle_and_runs_downwards(installed):
+    _, site, _ = installed
+    graph = import_graph(site / "gridflow")
+    assert {"gridflow.estimator.driver", "gridflow.estimator._solver", "gridflow.bench.cli",
+            "gridflow.bench.sweep"} <= set(graph)
+    assert "gridflow.estimator.backends" in graph["gridflow.estimator.driver"]
+    assert not cycles(graph), f"import cycles: {cycles(graph)}"
+    assert not upward_edges(graph), "imports against the layering:\n" + "\n".join(
+        upward_edges(graph))
+
+
+def test_the_graph_checker_finds_cycles_and_upward_imports(tmp_path):
+    """The checker must be able to fail: a package whose driver and kernels import each
+    other (lazily, inside a function: the form the earlier estimator/core.py and _fast.py
+    had), and a numerics module importing the benchmark."""
+    pkg = tmp_path / "gridflow"
+    (pkg / "estimator").mkdir(parents=True)
+    (pkg / "bench").mkdir()
+    for init in (pkg, pkg / "estimator", pkg / "bench"):
+        (init / "__init__.py").write_text("")
+    (pkg / "estimator" / "core.py").write_text("from . import _fast\n")
+    (pkg / "estimator" / "_fast.py").write_text(
+        "def compile_kernels():\n    from .core import estimate\n")
+    (pkg / "estimator" / "models.py").write_text("from gridflow.bench.sweep import run\n")
+    (pkg / "bench" / "sweep.py").write_text("from gridflow.estimator import core\n")
+    graph = import_graph(pkg)
+    assert graph["gridflow.estimator.core"] == {"gridflow.estimator._fast"}
+    assert graph["gridflow.bench.sweep"] == {"gridflow.estimator.core"}
+    assert cycles(graph) == [["gridflow.estimator._fast", "gridflow.estimator.core"]]
+    assert upward_edges(graph) == ["gridflow.estimator.models -> gridflow.bench.sweep"]

@@ -174,7 +174,9 @@ def estimate_input(path, output, *, models=None, settings: dict | None = None, v
         n_ok = int(np.isfinite(est["Z"][est.interior]).sum())
         report.lines.append(f"wrote {outputs[m]}: model {m}, {n_ok}/"
                             f"{int(est.interior.sum())} interior pixels valid")
-    report.lines.append(f"estimated {', '.join(models)} in {report.seconds:.2f} s")
+    backend = next(iter(ests.values())).settings["backend"]
+    report.lines.append(f"estimated {', '.join(models)} in {report.seconds:.2f} s "
+                        f"(method {settings.get('method', 'fast')}: the {backend} backend)")
     return report
 
 

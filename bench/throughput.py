@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gridflow.estimator import estimate
+from gridflow.estimator import MODELS, estimate
 from gridflow.generators import make_sinusoid
 
 SECTIONS = ("inprocess", "cli", "scaling")
@@ -181,7 +181,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sections", nargs="+", choices=SECTIONS, default=list(SECTIONS))
     ap.add_argument("--size", type=int, default=512, help="in-process image size")
-    ap.add_argument("--models", nargs="+", default=["bcc", "hf", "full"])
+    ap.add_argument("--models", nargs="+", choices=MODELS, default=list(MODELS))
     ap.add_argument("--repeat", type=int, default=3,
                     help="rounds (in-process: one fast and one baseline call each) or CLI "
                          "repeats; the best is kept")

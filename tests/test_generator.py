@@ -68,6 +68,9 @@ def test_truth_maps():
     X = x * Z / 1000
     # per-frame units: a1 scales with the frame interval, a2 with its square
     np.testing.assert_allclose(sv.truth["a1"][0], (0.2 + 0.05 * X) * 2.0, rtol=1e-13)
+    Y = (np.arange(8) - 3.5)[:, None] * Z / 1000          # material Y at each pixel
+    np.testing.assert_allclose(sv.truth["a2"], (-0.1 + 0.01 * Y) * 2.0 ** 2, rtol=1e-13)
+    assert sv.truth["a2y"][0, 0] == pytest.approx(0.01 * 4.0)
     assert sv.truth["Uz"][0, 0] == pytest.approx(0.2)
     assert sv.truth["a2x"][0, 0] == 0 and sv.truth["a1x"][0, 0] == pytest.approx(0.1)
 

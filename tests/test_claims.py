@@ -164,3 +164,137 @@ def test_a_tiny_difference_does_not_fail_observation_3():
             return 1e-4 + 5 * abs(v) * 0.95
         return val
     assert _verdicts(_sweep(change))["3"] == "holds"
+
+
+# --- every level of the checker, just below and just above ---------------------------------
+#
+# The levels are written here as numbers (not imported from the module under test), so a
+# level changed in bench/claims.py fails here.  Each case sets one value of the ideal
+# sweep to the level times (1 - 1 %) and times (1 + 1 %) and says which side holds.
+
+BELOW, ABOVE = 0.99, 1.01
+
+
+def _at(param, model, quantity, value, noise, fn):
+    """A change of the ideal sweep: ``fn(val, xm)`` at one point of one curve."""
+    def change(p, m, q, v, n, val):
+        if (p, m, q, noise) == (param, model, quantity, n) and abs(v) == value:
+            return fn(val)
+        return val
+    return change
+
+
+def _curve_change(param, model, quantity, noise, fn):
+    """``fn(|value|, val)`` over a whole curve."""
+    def change(p, m, q, v, n, val):
+        if (p, m, q, n) == (param, model, quantity, noise):
+            return fn(abs(v), val)
+        return val
+    return change
+
+
+XM = _x_mean(pd.DataFrame({"generator": [json.dumps({})], "estimator": [json.dumps({})]}))
+FULL_A1_ON_A1X = {a: 1e-4 + 5 * a for a in A1X}       # _ideal's full-model a1 error on a1x
+
+
+LEVELS = [
+    # (observation, what, change at the level times k, verdict below, verdict above)
+    ("1", "Q_rel(a1) < 0.25 % for 0.1 <= a1 < 1",
+     lambda k: _at("a1", "full", "a1", 0.5, 0.0, lambda v: 0.0025 * k), "holds", "partly"),
+    ("1", "beyond a1 = 1 at most 5 %",
+     lambda k: _at("a1", "full", "a1", 2.0, 0.0, lambda v: 0.05 * k), "holds", "partly"),
+    ("2", "log-log slope at least 0.8",
+     lambda k: _curve_change("a2", "full", "a2", 0.0,
+                             lambda a, v: 1.3 * a ** (0.8 * k) if a else v),
+     "does not hold", "holds"),
+    ("2", "log-log slope at most 1.2",
+     lambda k: _curve_change("a2", "full", "a2", 0.0,
+                             lambda a, v: 1.3 * a ** (1.2 * k) if a else v),
+     "holds", "does not hold"),
+    ("3", "HF's a1 error at the largest a1x twice full's",
+     lambda k: _at("a1x", "hf", "a1", 0.1, 0.0, lambda v: 2 * k * FULL_A1_ON_A1X[0.1]),
+     "partly", "holds"),
+    ("3", "HF's a1 error at least 0.9 x full's at every a1x",
+     lambda k: _at("a1x", "hf", "a1", 0.01, 0.0, lambda v: 0.9 * k * FULL_A1_ON_A1X[0.01]),
+     "partly", "holds"),
+    ("3", "strong cross-talk: 10x the error at a1x = 0",
+     lambda k: _at("a1x", "full", "a1", 0.1, 0.0, lambda v: 10 * k * 1e-4), "partly", "holds"),
+    ("4", "HF/full a2 error ratio at most 2",
+     lambda k: _at("a2x", "hf", "a2", 0.01, 0.0, lambda v: 2 * k * v), "holds", "partly"),
+    ("4", "HF/full a2 error ratio at least 1/2",
+     lambda k: _at("a2x", "hf", "a2", 0.01, 0.0, lambda v: 0.5 * k * v), "partly", "holds"),
+    ("5", "leak below 1 % of the perturbation",
+     lambda k: _at("a2", "hf", "a1", 0.3, 0.0, lambda v: v + 0.01 * k * 0.3),
+     "holds", "partly"),
+    ("6", "top decade ratio at least 10",
+     lambda k: _curve_change("a1x", "hf", "a2", 0.0,
+                             lambda a, v: 10 * k * (1e-7 + 1e-5 * a) if a >= 0.01 else v),
+     "does not hold", "holds"),
+    ("6", "top decade ratio at most 10^2.5",
+     lambda k: _curve_change("a1x", "hf", "a2", 0.0,
+                             lambda a, v: 10 ** 2.5 * k * (1e-7 + 1e-5 * a) if a >= 0.01
+                             else v),
+     "holds", "does not hold"),
+    ("7", "breaks down: U_Z error above 0.1",
+     # (the noisy curve follows, 10 % above, as _ideal has it: obs. 10 unchanged)
+     lambda k: lambda p, m, q, v, n, val: (
+         0.1 * k * (1.1 if n else 1.0) if (p, m, q) == ("a1", "bcc", "Uz") and v else val),
+     "partly", "holds"),
+    ("7", "does not react: HF's U_Z error below 0.01 for a1 <= 0.1",
+     lambda k: _at("a1", "hf", "Uz", 0.1, 0.0, lambda v: 0.01 * k), "holds", "partly"),
+    ("8", "full stable: U_Z error below 0.01 at every a1x",
+     lambda k: _at("a1x", "full", "Uz", 0.05, 0.0, lambda v: 0.01 * k), "holds", "partly"),
+    ("9", "the three models agree within a factor 2 at the smallest |a2|",
+     lambda k: _at("a2", "bcc", "Uz", 0.001, 0.0, lambda v: 2 * k * (1e-4 + 1.2 * 0.001)),
+     "holds", "partly"),
+    ("10", "noise changes the largest values by at most 1.5x",
+     lambda k: _at("a2", "full", "Uz", 0.3, 0.025, lambda v: 1.5 * k * (1e-4 + 1.2 * 0.3)),
+     "holds", "partly"),
+    ("10", "small a1: noise-free U_Z error below 0.005",
+     lambda k: _at("a1", "full", "Uz", 0.02, 0.0, lambda v: 0.005 * k), "holds", "partly"),
+    ("10", "small a1: noisy U_Z error at least 0.05",
+     lambda k: _at("a1", "full", "Uz", 0.01, 0.025, lambda v: 0.05 * k), "partly", "holds"),
+    ("10", "small a1: noisy U_Z error at most 0.2",
+     lambda k: _at("a1", "full", "Uz", 0.01, 0.025, lambda v: 0.2 * k), "holds", "partly"),
+]
+
+
+@pytest.mark.parametrize("cid, what, change, below, above", LEVELS,
+                         ids=[f"obs{c}: {w}" for c, w, *_ in LEVELS])
+def test_each_level_just_below_and_just_above(cid, what, change, below, above):
+    for k, want in ((BELOW, below), (ABOVE, above)):
+        got = _verdicts(_sweep(change(k)))
+        assert got[cid] == want, (cid, what, k, got[cid])
+        assert {c: v for c, v in got.items() if c != cid} == {
+            c: "holds" for c in got if c != cid}, (cid, what, k, got)
+
+
+def test_breakdown_needs_ten_times_the_full_models_error():
+    """"Breaks down" needs Q_rel(U_Z) at least 10x the full model's, besides above 0.1
+    (that level: obs. 7 in LEVELS).  On the a2 axis from |a2| = 0.1 on, where the full
+    model's ideal error 1e-4 + 1.2 |a2| is itself above 0.1, BCC at 10.1x it is broken
+    from 0.1 on, at 9.9x nowhere (below 0.1 BCC keeps the full model's error)."""
+    def bcc_times(k):
+        def change(p, m, q, v, noise, val):
+            if p == "a2" and m == "bcc" and q == "Uz" and noise == 0 and abs(v) >= 0.1:
+                return 10 * k * (1e-4 + 1.2 * abs(v))
+            return val
+        return breakdown(_sweep(change), "bcc", "a2")
+
+    assert bcc_times(ABOVE) == (0.07, 0.1)
+    assert bcc_times(BELOW) == (0.3, float("inf"))
+
+
+def test_breakdown_location_boundaries():
+    """"≈ 0.1": the breakdown interval (lo, hi] meets [0.1 / 2, 0.1 * 2]; on the sweep's
+    grid of |a2| (.., 0.02, 0.05, 0.07, 0.1, 0.15, 0.2, 0.3) a breakdown from 0.2 on is
+    (0.15, 0.2] (lo 0.15 < 0.2: holds), from 0.3 on (0.2, 0.3] (lo not below 0.2: does
+    not), from 0.05 on (0.02, 0.05] (hi 0.05 >= 0.05: holds), from 0.02 on (0.01, 0.02]
+    (hi below 0.05: does not)."""
+    for where, verdict in ((0.2, "holds"), (0.3, "partly"), (0.05, "holds"),
+                           (0.02, "partly")):
+        def change(p, m, q, v, noise, val, where=where):
+            if p == "a2" and m == "bcc" and q == "Uz" and noise == 0:
+                return 100.0 if abs(v) >= where else 1e-4 + 1.2 * abs(v)
+            return val
+        assert _verdicts(_sweep(change))["9"] == verdict, where

@@ -272,7 +272,26 @@ def test_manifest_keys_are_honoured_or_refused(image_folder, changes, drop):
         assert "grid.json" in str(exc) or str(image_folder) in str(exc)
         TRIED["manifest: refused with a clear error"] += 1
         return
-    # accepted: every key was honoured exactly as written
+    # accepted: every value lies in its range, stated here independently of the loader
+    # (an echo alone would pass a wrong value the loader let through)
+    def number(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+
+    T, grid = m["frames"], m["grid"]
+    assert isinstance(T, int) and not isinstance(T, bool) and T >= 1
+    assert all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 and v % 2 == 1
+               for v in grid) and len(grid) == 2
+    assert number(m["focal_length"]) and m["focal_length"] > 0
+    ds = m["camera_spacing"]
+    assert len(ds) == 2 and all(number(v) for v in ds) and ds[0] > 0
+    assert ds[1] > 0 if grid[0] > 1 else ds[1] >= 0
+    rf = m.get("reference_frame")
+    assert rf is None or (isinstance(rf, int) and not isinstance(rf, bool) and 0 <= rf < T)
+    rc = m.get("reference_camera")
+    assert rc is None or rc == [(grid[0] - 1) // 2, (grid[1] - 1) // 2]
+    pp = m.get("principal_point")
+    assert pp is None or (len(pp) == 2 and all(number(v) for v in pp))
+    # and every key was honoured exactly as written
     assert "colour" not in m
     assert d.volume.shape == (m["frames"], m["grid"][0], m["grid"][1], 12, 10)
     assert d.focal_length == m["focal_length"] and list(d.camera_spacing) == m["camera_spacing"]

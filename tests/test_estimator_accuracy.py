@@ -1,95 +1,108 @@
 """Noise-free accuracy on the default sinusoid (5x5 cameras, 9 frames, 192x192).
 
-The bounds are the estimator's accuracy requirements and the paper's observations; the values
-measured when this was written are in the comments and in docs/reproduction.md, so the
-margin each bound leaves is visible.
+Each bound is ``MARGIN`` times the error measured when it was written (at 536ab82; the
+value is in the comment beside it), so that a change of the estimator's accuracy by more
+than that fails; where the paper states a requirement it is named too, and every bound
+lies inside it.  Noise-free estimates are deterministic: the margin is room for other
+BLAS/CPU builds, whose roundoff (1e-12 of each quantity) is far below these errors.
 """
 
 import pytest
 
+MARGIN = 3.0
 SLANTED = dict(Z_X=0.3, Z_Y=-0.2, U_X=0.05, U_Y=0.05, U_Z=0.1)
 
 
 def test_full_model_brightness_constant(run):
     _, _, s = run()
-    assert s["full"]["Z"]["q_rel"] <= 0.005      # measured 6.9e-5
-    assert s["full"]["Uz"]["q_rel"] <= 0.01      # measured 2.7e-4 (paper: "well below 0.01")
+    assert s["full"]["Z"]["q_rel"] <= MARGIN * 6.9e-5      # measured 6.85e-5
+    assert s["full"]["Uz"]["q_rel"] <= MARGIN * 2.7e-4     # 2.69e-4 (paper: "well below 0.01")
     for m in ("bcc", "hf", "full"):
         assert s[m]["Z"]["n_invalid"] == 0
 
 
-@pytest.mark.parametrize("a1", [0.1, 0.5])
-def test_a1_relative_error(run, a1):
-    # observation 1: well below 0.5 % for a1 < 1 (measured 1.6e-3 and 3.3e-4)
+@pytest.mark.parametrize("a1, measured", [(0.1, 1.63e-3), (0.5, 3.3e-4)])
+def test_a1_relative_error(run, a1, measured):
+    # observation 1: well below 0.5 % for a1 < 1
     _, _, s = run(a1=a1)
-    assert s["full"]["a1"]["q_rel"] <= 0.005
+    assert s["full"]["a1"]["q_rel"] <= MARGIN * measured
 
 
 def test_a1_equal_one_reported(run):
-    # measured 4.1e-4 (docs/reproduction.md); the paper: "moderately raises" past 1.
+    # measured 4.08e-4 (docs/reproduction.md); the paper: "moderately raises" past 1
     _, _, s = run(a1=1.0)
-    assert s["full"]["a1"]["q_rel"] < 0.05
+    assert s["full"]["a1"]["q_rel"] <= MARGIN * 4.1e-4
 
 
 def test_slanted_translating_plane(run):
     _, _, s = run(**SLANTED)
     f = s["full"]
-    assert f["Zx"]["q_abs"] <= 0.02             # measured 3.8e-4 (per-axis Eq. 16: 1.9e-3)
-    assert f["Zy"]["q_abs"] <= 0.02             # measured 8.7e-5 (per-axis Eq. 16: 1.9e-3)
-    assert f["Ux"]["q_rel"] <= 0.03             # measured 1.2e-4
-    assert f["Uy"]["q_rel"] <= 0.03             # measured 6.7e-5
-    assert f["Uz"]["q_rel"] <= 0.05             # measured 2.4e-4
+    assert f["Zx"]["q_abs"] <= MARGIN * 3.8e-4     # measured 3.78e-4 (per-axis Eq. 16: 1.9e-3)
+    assert f["Zy"]["q_abs"] <= MARGIN * 8.7e-5     # 8.70e-5 (per-axis Eq. 16: 1.9e-3)
+    assert f["Ux"]["q_rel"] <= MARGIN * 1.2e-4     # 1.19e-4
+    assert f["Uy"]["q_rel"] <= MARGIN * 6.7e-5     # 6.69e-5
+    assert f["Uz"]["q_rel"] <= MARGIN * 2.4e-4     # 2.43e-4
 
 
 def test_slant_correction_is_what_makes_Uz_right(run):
-    # The paper's reading of u_z ignores the slant-motion coupling U_X Z_X / U_Z = 0.15
-    # (plus U_Y Z_Y / U_Z = -0.1 in y); without the correction the bias is of that size.
+    """The paper's reading of u_z ignores the slant-motion coupling, to first order a bias
+    of U_X Z_X / U_Z = 0.15 (plus U_Y Z_Y / U_Z = -0.1 in y, averaged with it by the
+    weights); measured 0.146 without the correction, within 13 % of the first-order 0.15
+    asked here."""
     _, _, s = run(**SLANTED, est_slant_correction=False)
-    assert 0.08 < s["full"]["Uz"]["q_rel"] < 0.2   # measured 0.146
+    assert 0.13 < s["full"]["Uz"]["q_rel"] < 0.17
 
 
 def test_bcc_breaks_down_with_a1(run):
-    # observation 7: BCC's U_Z error >= 10x the full model's at a1 = 0.5
+    # observation 7: BCC's U_Z error >= 10x the full model's at a1 = 0.5 (the claims
+    # checker's level); measured 299 against 2.6e-4
     _, _, s = run(a1=0.5)
-    assert s["bcc"]["Uz"]["q_rel"] >= 10 * s["full"]["Uz"]["q_rel"]   # 109 vs 2.6e-4
+    assert s["bcc"]["Uz"]["q_rel"] >= 10 * s["full"]["Uz"]["q_rel"]
+    assert s["full"]["Uz"]["q_rel"] <= MARGIN * 2.6e-4
 
 
 def test_hf_breaks_down_with_a1x(run):
-    # observation 8: with a1x only the full model stays stable (HF >= 5x full)
+    # observation 8: with a1x only the full model stays stable; measured at a1x = 0.01:
+    # HF 1.70e-2, BCC 5.75e-2, full 2.74e-4 (62x and 210x)
     _, _, s = run(a1x=0.01)
-    assert s["hf"]["Uz"]["q_rel"] >= 5 * s["full"]["Uz"]["q_rel"]     # 1.7e-2 vs 2.7e-4
-    assert s["bcc"]["Uz"]["q_rel"] >= 5 * s["full"]["Uz"]["q_rel"]
+    assert s["hf"]["Uz"]["q_rel"] >= 10 * s["full"]["Uz"]["q_rel"]
+    assert s["bcc"]["Uz"]["q_rel"] >= 10 * s["full"]["Uz"]["q_rel"]
+    assert s["full"]["Uz"]["q_rel"] <= MARGIN * 2.7e-4
 
 
 def test_one_dimensional_grid(run):
+    """A horizontal row of the same 5 cameras: measured Q_rel(Z) 6.96e-5 against 6.85e-5
+    on the 5 x 5 grid, Q_rel(U_Z) 2.71e-4 against 2.69e-4 (ratios 1.016, 1.006); asked: at
+    most 10 % worse."""
     _, _, s2 = run()
     _, res, s1 = run(grid=(1, 5))
     assert res["full"].settings["filters_sy"] is None
     for q in ("Z", "Uz"):
-        assert s1["full"][q]["q_rel"] <= 2 * s2["full"][q]["q_rel"]
+        assert s1["full"][q]["q_rel"] <= 1.1 * s2["full"][q]["q_rel"]
 
 
 def test_three_by_three_grid_five_frames(run):
-    # the smallest grid the filters allow: 3-tap pairs across cameras and time
+    # the smallest grid the filters allow: 3-tap pairs across cameras and time;
+    # measured Q_rel(Z) 2.02e-4, Q_rel(U_Z) 3.11e-4
     _, res, s = run(grid=(3, 3), frames=5)
     assert res["full"].settings["filters_sx"] == "matched3"
     assert res["full"].settings["filters_t"] == "matched3"
-    assert s["full"]["Z"]["q_rel"] <= 0.005
-    assert s["full"]["Uz"]["q_rel"] <= 0.01
+    assert s["full"]["Z"]["q_rel"] <= MARGIN * 2.0e-4
+    assert s["full"]["Uz"]["q_rel"] <= MARGIN * 3.1e-4
 
 
 def test_slopes_exact_for_a_plane_slanted_both_ways(run):
     """Eq. 16 (and Eq. 20) inverted with both slopes: at f = 100 px the pixel offsets x0/f
     reach 0.95, where the per-axis inversion is off by the other slope's term
     (Z_y y0 / f ~ 0.2): it measured Q_rel(Z_X) = 6.4 %, Q_rel(Z_Y) = 9.5 %,
-    Q_rel(a1x) = 4.8 %, Q_rel(a1y) = 12.8 %; the exact form measured 0.56 %, 0.55 %, 0.46 %,
-    0.90 %.  What remains is Eq. 17's truncation: second-order terms of relative size
-    (z_x σ)^2 = (Z_X σ / Z0)^2 ~ (0.3 * 16 / 100)^2 = 2.3e-3 per slope; the bound is 4x that
-    (1 %) for the slopes, and 2 % for the brightness gradients, which divide by the slopes'
-    denominator once more."""
+    Q_rel(a1x) = 4.8 %, Q_rel(a1y) = 12.8 %; the exact form measures 0.56 %, 0.55 %,
+    0.46 %, 0.90 %.  What remains is Eq. 17's truncation: second-order terms of relative
+    size (z_x σ)^2 = (Z_X σ / Z0)^2 ~ (0.3 * 16 / 100)^2 = 2.3e-3 per slope.  Bounds:
+    MARGIN times the exact form's errors, each below the per-axis form's."""
     _, res, scores = run(Z_X=0.3, Z_Y=-0.2, U_X=0.05, U_Y=0.05, U_Z=0.1, f=100.0,
                          spacing=(0.5, 0.5), a1=0.05, a1x=0.002, a1y=-0.001,
                          est_models=("full",))
     s = scores["full"]
-    assert s["Zx"]["q_rel"] < 0.01 and s["Zy"]["q_rel"] < 0.01
-    assert s["a1x"]["q_rel"] < 0.02 and s["a1y"]["q_rel"] < 0.02
+    assert s["Zx"]["q_rel"] <= MARGIN * 5.6e-3 and s["Zy"]["q_rel"] <= MARGIN * 5.5e-3
+    assert s["a1x"]["q_rel"] <= MARGIN * 4.6e-3
+    assert s["a1y"]["q_rel"] <= MARGIN * 9.0e-3

@@ -85,7 +85,8 @@ def test_cli_generate_estimate_evaluate(tmp_path, capsys):
     assert main(["evaluate", str(est), str(vol)]) == 0
     out = capsys.readouterr().out
     line = next(l for l in out.splitlines() if l.startswith("a1 "))
-    assert float(line.split()[1]) < 0.005          # Q_rel(a1) at a1 = 0.3
+    # Q_rel(a1) at a1 = 0.3 on this 80^2, 7-frame volume: measured 5.5e-4; asked 3x
+    assert float(line.split()[1]) < 3 * 5.5e-4
 
 
 def test_cli_bcc_writes_only_its_maps(tmp_path):

@@ -106,16 +106,16 @@ def test_bad_scene_folders_are_named(tmp_path):
 
 
 def test_static_light_field_disparity_and_slope():
-    """One frame: depth, slopes and disparity from the camera axes alone.  Tolerance: the
-    texture is smooth (wavelengths >= 18 px) and the disparity 0.4 px per view, so the
-    5-tap derivative filters are accurate to ~1e-4 of the shift; 1e-3 px is allowed."""
+    """One frame: depth, slopes and disparity from the camera axes alone.  The texture is
+    smooth (wavelengths >= 18 px) and the disparity 0.4 px per view: measured max error
+    1.5e-6 px (at 536ab82); asked: 5e-6 px."""
     from gridflow.estimator import estimate
 
     views, truth = plane_views(n=5, size=96, d0=0.4)
     e = estimate(views[None], 96.0, (1.0, 1.0), model="bcc", sigma=4.0, window=17)
     m = e.interior
     assert set(e.maps) == {"Z", "Zx", "Zy", "disparity", "model_error"}
-    assert np.nanmax(np.abs(e["disparity"][m] - truth[m])) < 1e-3
+    assert np.nanmax(np.abs(e["disparity"][m] - truth[m])) < 5e-6
     # Z = -f / v with v = -d / ds: for parallel cameras Z = f ds / d
     np.testing.assert_allclose(e["Z"][m], 96.0 / e["disparity"][m], rtol=1e-12)
     with pytest.raises(ValueError, match="time axis"):
@@ -128,9 +128,9 @@ def test_static_light_field_fast_path_agrees_with_reference(grid):
     dimension per camera axis: two on a 2-D grid, one (ds_x alone) on a static 1-D grid,
     the case a past version read and wrote out of bounds on.  Fast against reference on
     a noisy plane (noise 1e-3, so that the model error is the noise's, not roundoff):
-    1e-6 of each quantity's scale, as tests/test_estimator_properties.py asks of moving
-    scenes.  Noise-free, the fast path's disparity is within 1e-3 px of the truth (the
-    tolerance of the test above, same texture and disparity)."""
+    measured 5.7e-10 (2-D) and 6.9e-10 (1-D) of each quantity's scale; asked 10x, 7e-9.
+    Noise-free, the fast path's disparity measured within 1.6e-6 (2-D) and 1.9e-6 px (1-D)
+    of the truth; asked: 6e-6 px."""
     from gridflow.estimator import estimate
     views, truth = plane_views(n=5, size=160, d0=0.4)
     pick = (slice(None), slice(None)) if grid == "2-D" else (slice(2, 3), slice(None))
@@ -140,7 +140,7 @@ def test_static_light_field_fast_path_agrees_with_reference(grid):
     assert e.settings["backend"] == "numba"
     m = e.interior
     assert m.sum() > 0.5 * m.size
-    assert np.nanmax(np.abs(e["disparity"][m] - truth[m])) < 1e-3
+    assert np.nanmax(np.abs(e["disparity"][m] - truth[m])) < 6e-6
     noisy = vol + 1e-3 * np.random.default_rng(1).normal(size=vol.shape)
     a = estimate(noisy, 160.0, (1.0, 1.0), method="fast", **kw)
     b = estimate(noisy, 160.0, (1.0, 1.0), method="reference", **kw)
@@ -148,7 +148,7 @@ def test_static_light_field_fast_path_agrees_with_reference(grid):
              "model_error": float(np.nanmax(b["model_error"]))}
     for name in a.maps:
         np.testing.assert_array_equal(np.isnan(a[name]), np.isnan(b[name]))
-        assert np.nanmax(np.abs(a[name] - b[name])) <= 1e-6 * scale[name], name
+        assert np.nanmax(np.abs(a[name] - b[name])) <= 7e-9 * scale[name], name
 
 
 def test_refocusing_reaches_large_disparities():
@@ -162,12 +162,12 @@ def test_refocusing_reaches_large_disparities():
     plain = estimate(views[None], 96.0, (1.0, 1.0), model="bcc", sigma=4.0, window=17)
     res = estimate_refocused(views, shifts=range(-3, 4), sigma=4.0, window=17)
     m = plain.interior
-    # measured: plain 7.2e-3 (median), refocused 1.9e-4 (max)
+    # measured: plain 7.2e-3 (median), refocused 1.9e-4 (max; asked: 6e-4)
     assert np.nanmedian(np.abs(plain["disparity"][m] - truth[m])) > 5e-3
     ok = res["valid"]
     # the shear by 3 moves 6 px of repeated edge into the outer views: those pixels go
     assert ok.sum() == (m.sum() ** 0.5 - 12) ** 2
-    assert np.max(np.abs(res["disparity"][ok] - truth[ok])) < 1e-3
+    assert np.max(np.abs(res["disparity"][ok] - truth[ok])) < 6e-4
     assert (res["shear"][ok] == 3).all() and np.isfinite(res["confidence"][ok]).all()
     assert np.isnan(res["disparity"][~ok]).all()
 
@@ -219,9 +219,10 @@ def test_occlusion_aware_shears_keep_edges_sharp():
     per shear among camera sub-grids and shifted windows, with the costs pooled over
     pixels of similar brightness, keeps the edges.  Measured BadPix(0.07) within 8 px of
     the edges: coarse 76 %, occlusion on the central 5 x 5 27 %, on all 9 x 9 views
-    3.3 %; 0 % far from the edges for both occlusion runs.  The data are noise-free and
-    deterministic; the bounds sit between the measured values, so the test fails when
-    an ingredient stops working, not on round-off."""
+    3.3 %; 0 % far from the edges for both occlusion runs; 1.35 % over the benchmark's
+    scored pixels.  The data are noise-free and deterministic; the bounds sit between the
+    measured values (3x the measured ones where that does), so the test fails when an
+    ingredient stops working or gets 3x worse, not on round-off."""
     from gridflow.bench.metrics import hci_metrics
     from gridflow.estimator.lightfield import estimate_refocused
 
@@ -239,7 +240,7 @@ def test_occlusion_aware_shears_keep_edges_sharp():
     assert badpix(occ9, truth, near) < 10.0          # plus the outer views' sub-grids
     assert badpix(occ9, truth, ~near) == 0.0 and badpix(occ5, truth, ~near) == 0.0
     # the benchmark's metric agrees (its 15-px border, all pixels)
-    assert hci_metrics(occ9["disparity"], truth)["badpix_007"] < 5.0
+    assert hci_metrics(occ9["disparity"], truth)["badpix_007"] < 4.0
     assert set(occ9) == {"disparity", "shear", "model_error", "confidence", "valid", "filled"}
     with pytest.raises(ValueError, match="select must be"):
         estimate_refocused(views, select="best")
@@ -256,7 +257,8 @@ def test_line_subgrids_see_between_thin_stripes():
     (all 9 x 9 views) in the gaps: squares ('occlusion') 95.9 %, lines 2.6 %; on the
     stripes: squares 3.2 %, lines 0.0 %.  (With 6 px gaps a window and its derivative
     filters no longer fit between the stripes: lines 15.7 %.)  Noise-free and
-    deterministic; the bounds sit between the measured values."""
+    deterministic; the bounds sit between the measured values (lines in the gaps: 3x the
+    measured; on the stripes 0 of 2112 scored pixels measured, 1 % asked)."""
     from gridflow.estimator.lightfield import estimate_refocused
 
     bands = [(20 + 16 * i, 28 + 16 * i) for i in range(4)]
@@ -268,7 +270,7 @@ def test_line_subgrids_see_between_thin_stripes():
     lines = estimate_refocused(views, shifts=shifts, select="lines", fill=True)
     squares = estimate_refocused(views, shifts=shifts, select="occlusion", fill=True)
     assert badpix(squares, truth, gaps) > 50.0
-    assert badpix(lines, truth, gaps) < 10.0
+    assert badpix(lines, truth, gaps) < 8.0
     assert badpix(lines, truth, truth > 0) < 1.0
     with pytest.raises(ValueError, match="subgrid must be odd"):
         estimate_refocused(views, select="lines", subgrid=11)
@@ -315,8 +317,8 @@ def test_cli_hci_round_trip(tmp_path, capsys):
 def test_motion_peers_share_the_scoring():
     """The flow of gridflow's estimate and of the two optical-flow peers is scored on the
     same pixels against the same truth; on a translating sinusoid without brightness
-    change all find the flow (0.5, 0.3) px/frame (measured Q_rel: gridflow 7e-5,
-    Farnebäck 5e-3, ILK 0.17 in x)."""
+    change all find the flow (0.5, 0.3) px/frame (measured Q_rel in x: gridflow 6.9e-5,
+    Farnebäck 5.3e-3, ILK 0.17; asked: 3x each)."""
     from gridflow.bench.peers import compare_motion
     from gridflow.generators import make_sinusoid
 
@@ -324,8 +326,8 @@ def test_motion_peers_share_the_scoring():
     got = {(r["method"], r["quantity"]): r for r in rows}
     assert set(m for m, _ in got) == {"gridflow_full", "ilk", "farneback"}
     assert len({r["n_pixels"] for r in rows}) == 1
-    assert got[("gridflow_full", "flow_x")]["q"] < 1e-3
-    assert got[("farneback", "flow_x")]["q"] < 0.05
+    assert got[("gridflow_full", "flow_x")]["q"] < 2.1e-4
+    assert got[("farneback", "flow_x")]["q"] < 0.016
     assert got[("ilk", "flow_x")]["q"] < 0.5
 
 

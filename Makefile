@@ -10,7 +10,7 @@ PY     := $(BIN)/python
 STAMP  := $(VENV)/.installed
 
 .DEFAULT_GOAL := help
-.PHONY: help env test figures reproduce baseline bench clean distclean povray
+.PHONY: help env test figures reproduce baseline bench mutants clean distclean povray
 
 help:
 	@echo "make figures   reproduce the paper's figures and result tables (results/)"
@@ -18,6 +18,7 @@ help:
 	@echo "make test      run the test suite"
 	@echo "make baseline  regenerate the stored error curves deliberately"
 	@echo "make bench     run the throughput benchmark"
+	@echo "make mutants   run the hand-written mutants against the tests (about 5 min)"
 	@echo "make clean     remove caches (never results of long runs)"
 
 # gridflow is installed in strict editable mode: a tree of links to the repository's files
@@ -126,6 +127,11 @@ baseline: $(STAMP)
 
 test: $(STAMP) $(KERNELS) povray
 	$(PY) -m pytest
+
+# plausible one-line bugs, each applied alone to a copy of the package, against the
+# correctness tests that should catch it (tests/mutation.py; not part of make test)
+mutants: $(STAMP) $(KERNELS)
+	$(PY) tests/mutation.py
 
 # build/ holds the editable install's link tree: removing it means installing again
 clean:

@@ -193,7 +193,6 @@ def _curve_change(param, model, quantity, noise, fn):
     return change
 
 
-XM = _x_mean(pd.DataFrame({"generator": [json.dumps({})], "estimator": [json.dumps({})]}))
 FULL_A1_ON_A1X = {a: 1e-4 + 5 * a for a in A1X}       # _ideal's full-model a1 error on a1x
 
 

@@ -11,7 +11,6 @@ rows and columns and δ = RIDGE trace J; here it is computed directly with
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from gridflow.estimator.models import get_model
 from gridflow.estimator.nullspace import COMBINED_ROWS, RIDGE, null_space

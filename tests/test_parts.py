@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gridflow.estimator import COMBINE, FILTER_NAMES, METHODS, MODELS, Estimate, estimate
+from gridflow.estimator import COMBINE, FILTER_NAMES, METHODS, MODELS, estimate
 from gridflow.generators import make_sinusoid
 
 ROOT = Path(__file__).resolve().parent.parent

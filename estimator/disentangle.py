@@ -78,7 +78,6 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
             den = 1.0 + (zx * x0 + zy * y0) * Z / f
             return {"Z": Z, "Zx": zx * Z / den, "Zy": zy * Z / den, "disparity": disparity}
     ct = P[..., -1]                                   # the dt column
-    u = _MOTION[model.motion](ct, g, model, v, zx, zy, x0, y0, slant_correction, combine2)
     with np.errstate(divide="ignore", invalid="ignore"):
         Z = -f / v
         # Eq. 16 inverted exactly for a plane: along a plane -f/Z is affine in x and y,
@@ -88,8 +87,11 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
         den = 1.0 + (zx * x0 + zy * y0) * Z / f
         Zx = zx * Z / den
         Zy = zy * Z / den
-        out = {"Z": Z, "Zx": Zx, "Zy": Zy, "disparity": disparity}
-        out.update(_world_motion(u, Z, f))
+    out = {"Z": Z, "Zx": Zx, "Zy": Zy, "disparity": disparity}
+    plane = dict(v=v, zx=zx, zy=zy, Z=Z, Zx=Zx, Zy=Zy)
+    out.update(_MOTION[model.motion](P, g, model, plane, x0, y0, f, spacing,
+                                     slant_correction, combine2))
+    with np.errstate(divide="ignore", invalid="ignore"):
         out.update(_brightness(ct, model, Z, Zx, Zy, x0, y0, f))
     return out
 
@@ -114,10 +116,13 @@ def _from_ds_columns(P, g, model: Model, spacing, combine2):
     return v, zx, zy
 
 
-def _translation(ct, g, model: Model, v, zx, zy, x0, y0, slant_correction, combine2):
+def _translation(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, combine2):
     """The paper's motion model, from the dt column: the divergence ``u_z`` twice (rows 3
-    and 6, combined), then the image translation ``u_x, u_y``."""
+    and 6, combined), then the image translation ``u_x, u_y``; in world units by Eq. 16
+    inverted: ``U_x = Z u_x / f``, ``U_y = Z u_y / f``, ``U_z = -Z u_z``."""
     i = model.index
+    ct = P[..., -1]
+    v, zx, zy, Z = plane["v"], plane["zx"], plane["zy"], plane["Z"]
     p1, p2 = ct[:, i("Ix")], ct[:, i("Iy")]
     uz_x, uz_y = ct[:, i("IxDx")], ct[:, i("IyDy")]
     if slant_correction:
@@ -125,16 +130,138 @@ def _translation(ct, g, model: Model, v, zx, zy, x0, y0, slant_correction, combi
             uz_x = uz_x - zx * p1 / v
             uz_y = uz_y - zy * p2 / v
     uz = combine2(uz_x, 1.0 / g[:, i("IxDx")], uz_y, 1.0 / g[:, i("IyDy")])
-    return {"ux": p1 - x0 * uz, "uy": p2 - y0 * uz, "uz": uz}
+    ux, uy = p1 - x0 * uz, p2 - y0 * uz
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return {"Ux": Z * ux / f, "Uy": Z * uy / f, "Uz": -Z * uz}
 
 
-# motion model -> its disentangling of the dt column into image-based velocities
-_MOTION = {"translation": _translation}
+# The affine model's observations, in this order, and its unknowns: the velocity U of the
+# surface point a pixel sees and the velocity's derivatives g1 = dV/dX, g2 = dV/dY along
+# the surface (docs/model.md, *Affine motion*).
+_AFFINE_OBS = ("w_x", "w_y", "W_xx", "W_xy", "W_yx", "W_yy", "v_t", "zx_t", "zy_t")
 
 
-def _world_motion(u: dict, Z, f) -> dict:
-    """Eq. 16 inverted: ``U_x = Z u_x / f``, ``U_y = Z u_y / f``, ``U_z = -Z u_z``."""
-    return {"Ux": Z * u["ux"] / f, "Uy": Z * u["uy"] / f, "Uz": -Z * u["uz"]}
+def affine_observations(theta, Z, Zx, Zy, x0, y0, f):
+    """What a surface moving with ``theta = (U, g1, g2)`` shows at pixel ``(x0, y0)``.
+
+    The surface is the plane ``Z = c + Z_x X + Z_y Y`` through the point ``X_c = Z (x0/f,
+    y0/f, 1)`` the pixel sees; its points move with ``V = U + ΔX g1 + ΔY g2`` (``ΔX, ΔY``
+    their offsets from ``X_c``).  Returns, per frame, the image flow ``w`` at the pixel,
+    its gradient ``W = dw/d(x, y)``, and the rates of change at the fixed pixel of the
+    disparity ``v = -f/Z`` and of the projected slopes ``z_x = dv/dx``, ``z_y = dv/dy``:
+    the quantities the dt column and the ``t I_x``-rows of the ds columns hold.  Linear in
+    ``theta``.
+
+    Parameters
+    ----------
+    theta : ndarray, shape (9, N)
+        ``U_X, U_Y, U_Z, g1 (3), g2 (3)`` per pixel.
+    Z, Zx, Zy, x0, y0 : ndarray, shape (N,)
+    f : float
+
+    Returns
+    -------
+    ndarray, shape (9, N)
+        In the order of ``_AFFINE_OBS``.
+    """
+    U, g1, g2 = theta[0:3], theta[3:6], theta[6:9]
+    a, b = Zx, Zy
+    c = Z * (1.0 - a * x0 / f - b * y0 / f)            # Z = c / (1 - a x/f - b y/f)
+    Xc = np.stack([Z * x0 / f, Z * y0 / f, Z])
+    wx = (f * U[0] - x0 * U[2]) / Z
+    wy = (f * U[1] - y0 * U[2]) / Z
+    Zdx, Zdy = a * Z * Z / (c * f), b * Z * Z / (c * f)   # dZ/dx, dZ/dy along the plane
+    # the material offsets' derivatives along the image, then the velocity's
+    dXdx, dXdy = (Zdx * x0 + Z) / f, Zdy * x0 / f
+    dYdx, dYdy = Zdx * y0 / f, (Zdy * y0 + Z) / f
+    Vdx = g1 * dXdx + g2 * dYdx
+    Vdy = g1 * dXdy + g2 * dYdy
+    Wxx = (f * Vdx[0] - U[2] - x0 * Vdx[2]) / Z - wx * Zdx / Z
+    Wxy = (f * Vdy[0] - x0 * Vdy[2]) / Z - wx * Zdy / Z
+    Wyx = (f * Vdx[1] - y0 * Vdx[2]) / Z - wy * Zdx / Z
+    Wyy = (f * Vdy[1] - U[2] - y0 * Vdy[2]) / Z - wy * Zdy / Z
+    # the plane's normal N = e1 x e2 = (-a, -b, 1) turns with the surface:
+    # dN = g1 x e2 + e1 x g2; a = -N_x/N_z, b = -N_y/N_z, c = N . X_c / N_z
+    e1 = np.stack([np.ones_like(a), np.zeros_like(a), a])
+    e2 = np.stack([np.zeros_like(b), np.ones_like(b), b])
+    dN = np.cross(g1, e2, axis=0) + np.cross(e1, g2, axis=0)
+    N = np.stack([-a, -b, np.ones_like(a)])
+    da = -dN[0] - a * dN[2]
+    db = -dN[1] - b * dN[2]
+    dc = (dN * Xc).sum(0) + (N * U).sum(0) - c * dN[2]
+    v = -f / Z
+    vt = (da * x0 + db * y0) / c - v * dc / c
+    zxt = da / c - a * dc / (c * c)
+    zyt = db / c - b * dc / (c * c)
+    return np.stack([wx, wy, Wxx, Wxy, Wyx, Wyy, vt, zxt, zyt])
+
+
+def _affine(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, combine2):
+    """Affine motion: the flow and its gradient from the dt column, the rates of the
+    disparity and the projected slopes from the ``t I_x``-rows of the ds columns (each
+    twice on a 2-D grid, combined), and the 9 x 9 linear system of
+    :func:`affine_observations` solved per pixel for ``U, g1, g2``; then the growth (the
+    surface divergence of V), the rotation about the normal and the slopes' rates."""
+    i = model.index
+    dsx, dsy = spacing
+    ct, cx = P[..., -1], P[..., 0]
+    Z, Zx, Zy = plane["Z"], plane["Zx"], plane["Zy"]
+    rates = {q: cx[:, i(r)] / dsx for q, r in (("v_t", "tIx"), ("zx_t", "tIxDx"),
+                                               ("zy_t", "tIxDy"))}
+    if model.grid_dims == 2:
+        norm2 = np.einsum("nrc,nrc->nc", P, P)
+        cy = P[..., 1]
+        wx, wy = dsx ** 2 / norm2[:, 0], dsy ** 2 / norm2[:, 1]
+        for q, rx, ry in (("v_t", "tIx", "tIy"), ("zx_t", "tIxDx", "tIyDx"),
+                          ("zy_t", "tIxDy", "tIyDy")):
+            rates[q] = combine2(rates[q], wx / g[:, i(rx)], cy[:, i(ry)] / dsy,
+                                wy / g[:, i(ry)])
+    obs = np.stack([ct[:, i("Ix")], ct[:, i("Iy")], ct[:, i("IxDx")], ct[:, i("IxDy")],
+                    ct[:, i("IyDx")], ct[:, i("IyDy")], rates["v_t"], rates["zx_t"],
+                    rates["zy_t"]])
+    N = Z.size
+    ok = np.isfinite(obs).all(0) & np.isfinite(Z) & np.isfinite(Zx) & np.isfinite(Zy)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        # the system's columns: the observations of each unit motion
+        M = np.empty((N, 9, 9))
+        for j in range(9):
+            unit = np.zeros((9, N))
+            unit[j] = 1.0
+            M[:, :, j] = affine_observations(unit, Z, Zx, Zy, x0, y0, f).T
+        M[~ok] = np.eye(9)
+        theta = np.linalg.solve(M, np.where(ok, obs, 0.0).T[..., None])[..., 0].T
+        theta[:, ~ok] = np.nan
+        U, g1, g2 = theta[0:3], theta[3:6], theta[6:9]
+        # the surface's tangents e1 = (1, 0, Z_x), e2 = (0, 1, Z_y), unit normal n
+        e1 = np.stack([np.ones(N), np.zeros(N), Zx])
+        e2 = np.stack([np.zeros(N), np.ones(N), Zy])
+        n = np.stack([-Zx, -Zy, np.ones(N)])
+        n = n / np.sqrt((n * n).sum(0))
+        # growth: tr of the surface gradient sum_i g_i (e_i* . d): with the Gram matrix
+        # m of (e1, e2), the dual vectors are e_i* = sum_j (m^-1)_ij e_j
+        m11, m12, m22 = (e1 * e1).sum(0), (e1 * e2).sum(0), (e2 * e2).sum(0)
+        det = m11 * m22 - m12 * m12
+        inv = ((m22 / det, -m12 / det), (-m12 / det, m11 / det))
+        gs, e = (g1, g2), (e1, e2)
+        growth = sum(inv[a][b] * (e[b] * gs[a]).sum(0) for a in range(2) for b in range(2))
+        # rotation about n: (t2 . L t1 - t1 . L t2) / 2 for a right-handed (t1, t2, n),
+        # with L d = sum_i g_i (e_i* . d) the surface gradient of V
+        t1 = e1 / np.sqrt(m11)
+        t2 = np.cross(n, t1, axis=0)
+
+        def L(d):
+            dual = [sum(inv[a][b] * (e[b] * d).sum(0) for b in range(2)) for a in range(2)]
+            return g1 * dual[0] + g2 * dual[1]
+
+        rotation = 0.5 * ((t2 * L(t1)).sum(0) - (t1 * L(t2)).sum(0))
+        dN = np.cross(g1, e2, axis=0) + np.cross(e1, g2, axis=0)
+    return {"Ux": U[0], "Uy": U[1], "Uz": U[2], "growth": growth, "rotation": rotation,
+            "Zx_t": -dN[0] - Zx * dN[2], "Zy_t": -dN[1] - Zy * dN[2]}
+
+
+# motion model -> its disentangling: world velocities (and, for affine motion, growth,
+# rotation and the slopes' rates) from the parameter vectors and the plane
+_MOTION = {"translation": _translation, "affine": _affine}
 
 
 def _brightness(ct, model: Model, Z, Zx, Zy, x0, y0, f) -> dict:

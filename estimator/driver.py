@@ -147,7 +147,8 @@ def _axis_pair(name: str, samples: int, axis: str) -> FilterPair:
 def _time_window(s: EstimatorSettings, T: int, k_ref: int, models) -> tuple[FilterPair, int]:
     """The temporal filter pair and the temporal radius of Ω that fit the frames."""
     reach = min(k_ref, T - 1 - k_ref)
-    needs_t = any(m != "bcc" for m in models)   # I t rows need t to vary over Omega
+    # rows with a factor t (brightness change, affine motion) need t to vary over Omega
+    needs_t = any(m != "bcc" for m in models) or s.motion != "translation"
     time = None
     for cand in (get_filter_pair(s.filters), get_filter_pair("matched3")):
         room = reach - cand.radius
@@ -157,7 +158,7 @@ def _time_window(s: EstimatorSettings, T: int, k_ref: int, models) -> tuple[Filt
     if time is None:
         need = "at least 5 frames (3 in the temporal window)" if needs_t else "at least 3 frames"
         raise InputError(f"too few frames around the reference frame: T = {T}, k_ref = "
-                         f"{k_ref}; models {models} need {need}")
+                         f"{k_ref}; models {models} with motion {s.motion!r} need {need}")
     R_t = min(2, reach - time.radius) if s.temporal_radius is None else int(s.temporal_radius)
     if R_t < 0 or R_t > reach - time.radius or (needs_t and R_t < 1):
         raise InputError(f"temporal_radius {R_t} does not fit: frames {k_ref} +- {R_t} need "
@@ -206,6 +207,9 @@ def _plan(volume, focal_length, camera_spacing, principal_point, s: EstimatorSet
     static = T == 1
     if static:
         # a static light field: depth and slopes from the camera axes alone
+        if s.motion != "translation":
+            raise InputError(f"motion {s.motion!r} needs a time axis; a light field of one "
+                             "frame has no motion (motion 'translation', model 'bcc')")
         bad = [m for m in models if m != "bcc"]
         if bad:
             raise InputError(f"models {bad} need a time axis (brightness change over "
@@ -275,7 +279,8 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     models = tuple(models)
     backend = select_backend(s.method, np.shape(volume))
     plan = _plan(volume, focal_length, camera_spacing, principal_point, s, models, backend)
-    mdl: dict[str, Model] = {m: get_model(m, plan.grid_dims, plan.static) for m in models}
+    mdl: dict[str, Model] = {m: get_model(m, plan.grid_dims, plan.static, s.motion)
+                             for m in models}
     rows = covering_rows(mdl.values())
     vol = plan.volume
     T, Sy, Sx, H, W = vol.shape

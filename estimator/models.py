@@ -47,17 +47,27 @@ ROWS: dict[str, tuple[str, int, str]] = {
     "Isx": ("sx", 0, ""), "Isy": ("sy", 0, ""), "It": ("t", 0, ""),
     "I": ("I", 0, ""), "IDx": ("I", 0, "x"), "IDy": ("I", 0, "y"),
     "tI": ("I", 1, ""), "tIDx": ("I", 1, "x"), "tIDy": ("I", 1, "y"),
+    # the affine motion model's rows: disparity and projected slopes changing in time
+    "tIx": ("x", 1, ""), "tIy": ("y", 1, ""),
+    "tIxDx": ("x", 1, "x"), "tIxDy": ("x", 1, "y"),
+    "tIyDx": ("y", 1, "x"), "tIyDy": ("y", 1, "y"),
 }
 ALL_ROWS = tuple(ROWS)
 
 # Motion models: the geometric rows of d (the fixed rows I_sx, I_sy, I_t included) and
 # the quantities their parameters give.
+_TRANSLATION = ("Ix", "Iy", "IxDx", "IxDy", "IyDx", "IyDy", "Isx", "Isy", "It")
 _MOTION_ROWS = {
-    "translation": ("Ix", "Iy", "IxDx", "IxDy", "IyDx", "IyDy", "Isx", "Isy", "It"),
+    "translation": _TRANSLATION,
+    "affine": _TRANSLATION + ("tIx", "tIy", "tIxDx", "tIxDy", "tIyDx", "tIyDy"),
 }
 _MOTION_OUTPUTS = {
     "translation": ("Ux", "Uy", "Uz"),
+    "affine": ("Ux", "Uy", "Uz", "growth", "rotation", "Zx_t", "Zy_t"),
 }
+# rows a 1-D grid (ds_y = 0) drops: their ds_y part is gone, and under translation their
+# dt part (d(dy/dt)/dx) is zero; under affine motion it is a free flow gradient, kept
+_ROWS_1D_DROPPED = {"translation": ("IyDx", "Isy"), "affine": ("Isy",)}
 MOTIONS = tuple(_MOTION_ROWS)
 
 # Brightness models: the rows of I they add, and the quantities they estimate.
@@ -146,8 +156,11 @@ def get_model(name: str, grid_dims: int = 2, static: bool = False,
             raise ValueError(f"model {name!r} needs a time axis (brightness change over "
                              "frames); a light field of one frame takes model 'bcc'")
         rows = tuple(r for r in rows if r != "It")
+    if static and motion != "translation":
+        raise ValueError(f"motion {motion!r} needs a time axis; a light field of one frame "
+                         "has no motion")
     if grid_dims == 1:
-        rows = tuple(r for r in rows if r not in ("IyDx", "Isy"))
+        rows = tuple(r for r in rows if r not in _ROWS_1D_DROPPED[motion])
     return Model(name, rows, grid_dims, static, motion)
 
 

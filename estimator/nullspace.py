@@ -72,7 +72,8 @@ M_TOL = 1e-6
 # The fast solver (estimator._solver) uses it as the shift of its inverse iteration.
 RIDGE = 1e-13
 # Rows whose two estimates are combined (their g is needed).
-COMBINED_ROWS = ("Ix", "Iy", "IxDx", "IxDy", "IyDx", "IyDy")
+COMBINED_ROWS = ("Ix", "Iy", "IxDx", "IxDy", "IyDx", "IyDy",
+                 "tIx", "tIy", "tIxDx", "tIxDy", "tIyDx", "tIyDy")
 
 
 def null_space(J: np.ndarray, model: Model):

@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 
 from .filters import FILTER_NAMES
+from .models import MOTIONS
 
 __all__ = ["InputError", "EstimatorSettings", "METHODS", "COMBINE", "DEFAULTS"]
 
@@ -66,6 +67,11 @@ class EstimatorSettings:
     combine : {"inverse_variance", "mean"}
         How the twice-estimated ``v, z_x, z_y, u_z`` are combined: weighted by their
         first-order error estimates (default), or plainly averaged.
+    motion : {"translation", "affine"}
+        The motion model (:data:`estimator.models.MOTIONS`): the paper's translating
+        patch (default), or a velocity varying affinely across the surface, which adds
+        the growth, the rotation about the normal and the slopes' rates of change
+        (``docs/model.md``, *Affine motion*).
     """
 
     sigma: float = 16.0
@@ -77,6 +83,7 @@ class EstimatorSettings:
     slant_correction: bool = True
     band_rows: int | None = None
     combine: str = "inverse_variance"
+    motion: str = "translation"
 
     def __post_init__(self) -> None:
         """Refuse settings that are of the wrong type or out of range (InputError naming
@@ -100,6 +107,8 @@ class EstimatorSettings:
                              f"{self.slant_correction!r}")
         if self.combine not in COMBINE:
             raise InputError(f"combine must be one of {COMBINE}, got {self.combine!r}")
+        if self.motion not in MOTIONS:
+            raise InputError(f"motion must be one of {MOTIONS}, got {self.motion!r}")
         if self.band_rows is not None and not (_integer(self.band_rows) and self.band_rows >= 1):
             raise InputError(f"band_rows must be a positive integer or None, got "
                              f"{self.band_rows!r}")

@@ -2,8 +2,19 @@
 
 A textured plane ``Z = Z0 + U_Z t + Z_X Xm + Z_Y Ym`` translates with ``(U_X, U_Y, U_Z)``;
 ``(Xm, Ym)`` are the plane's own (material) coordinates, equal to world ``(X, Y)`` at
-``t = 0`` with the origin on the reference camera's optical axis.  Texture and brightness
-change are functions of the material coordinates (Eq. 8, 11)::
+``t = 0`` with the origin on the reference camera's optical axis.  Beyond the paper, the
+plane may also deform: its material points move with a translation plus a constant 3 x 3
+velocity gradient ``G`` about the point ``X_c = (0, 0, Z0)`` the reference pixel sees,
+
+    X(t) = X_c + U t + (I + G t) (M - X_c),      M = X_c + Xm e1 + Ym e2,
+
+(``e1 = (1, 0, Z_X)``, ``e2 = (0, 1, Z_Y)``), so that the velocity field at ``t = 0`` is
+``V(X) = U + G (X - X_c)`` and the plane stays a plane.  ``G`` is the sum of the
+``G_XX .. G_ZZ`` parameters (``G_XY = dV_X / dY``), an isotropic growth in the plane
+(``growth / 2`` times the projector onto it: the relative rate of change of area) and a
+rotation about the plane's normal ``n = (-Z_X, -Z_Y, 1) / |.|`` at ``rotation`` rad per
+unit time (right-handed in the camera frame).  Texture and brightness change are
+functions of the material coordinates (Eq. 8, 11)::
 
     I = T(Xm, Ym) * exp((a1 + a1x Xm + a1y Ym) t + (a2 + a2x Xm + a2y Ym) t^2)
 
@@ -29,9 +40,12 @@ import numpy as np
 from gridflow.errors import ParameterError
 from gridflow.volume import GridVolume
 
-__all__ = ["SinusoidParams", "SyntheticVolume", "make_sinusoid", "check_params", "BRIGHTNESS_PARAMS"]
+__all__ = ["SinusoidParams", "SyntheticVolume", "make_sinusoid", "check_params", "BRIGHTNESS_PARAMS",
+           "GRADIENT_PARAMS", "velocity_gradient"]
 
 BRIGHTNESS_PARAMS = ("a1", "a1x", "a1y", "a2", "a2x", "a2y")
+# the velocity gradient's entries, G_IJ = dV_I / dJ, row by row
+GRADIENT_PARAMS = ("G_XX", "G_XY", "G_XZ", "G_YX", "G_YY", "G_YZ", "G_ZX", "G_ZY", "G_ZZ")
 TEXTURES = ("sum", "product")
 
 # exp() of float64 overflows at 709.8; refuse well before so that a sweep value that would
@@ -85,6 +99,14 @@ class SinusoidParams:
         Number of frames ``T``.
     frame_interval : float
         Time between frames.
+    growth : float
+        Isotropic growth in the plane: relative rate of change of surface area per unit
+        time, ``d ln(area) / dt``.
+    rotation : float
+        Rotation about the plane's normal, rad per unit time.
+    G_XX, G_XY, G_XZ, G_YX, G_YY, G_YZ, G_ZX, G_ZY, G_ZZ : float
+        A velocity gradient ``dV_I / dJ`` per unit time, added to the two above
+        (anisotropic growth, shear, rotation about any axis).
     """
 
     Z0: float = 100.0
@@ -113,6 +135,17 @@ class SinusoidParams:
     spacing: tuple[float, float] = (0.05, 0.05)
     frames: int = 9
     frame_interval: float = 1.0
+    growth: float = 0.0
+    rotation: float = 0.0
+    G_XX: float = 0.0
+    G_XY: float = 0.0
+    G_XZ: float = 0.0
+    G_YX: float = 0.0
+    G_YY: float = 0.0
+    G_YZ: float = 0.0
+    G_ZX: float = 0.0
+    G_ZY: float = 0.0
+    G_ZZ: float = 0.0
 
     def __post_init__(self) -> None:
         if self.texture not in TEXTURES:
@@ -168,6 +201,27 @@ class SinusoidParams:
     def as_dict(self) -> dict:
         return asdict(self)
 
+    @property
+    def deforms(self) -> bool:
+        """Whether the plane deforms or rotates (a velocity gradient is set)."""
+        return any(getattr(self, n) != 0 for n in ("growth", "rotation") + GRADIENT_PARAMS)
+
+
+def _normal(p: SinusoidParams) -> np.ndarray:
+    n = np.array([-p.Z_X, -p.Z_Y, 1.0])
+    return n / np.linalg.norm(n)
+
+
+def velocity_gradient(p: SinusoidParams) -> np.ndarray:
+    """The velocity gradient ``G`` (3 x 3, per unit time) of the parameters: ``G_XX ..
+    G_ZZ`` plus ``growth / 2`` times the projector onto the plane plus ``rotation`` times
+    the cross-product matrix of the normal."""
+    n = _normal(p)
+    tangent = np.eye(3) - np.outer(n, n)
+    cross = np.array([[0.0, -n[2], n[1]], [n[2], 0.0, -n[0]], [-n[1], n[0], 0.0]])
+    G = np.array([getattr(p, k) for k in GRADIENT_PARAMS], dtype=float).reshape(3, 3)
+    return G + 0.5 * p.growth * tangent + p.rotation * cross
+
 
 class SyntheticVolume(GridVolume):
     """A :class:`gridflow.volume.GridVolume` made by :func:`make_sinusoid`;
@@ -199,6 +253,34 @@ def _intersect(p: SinusoidParams, x, y, sx: float, sy: float, t: float):
     Xm = sx + x * Z / p.f - p.U_X * t
     Ym = sy + y * Z / p.f - p.U_Y * t
     return Z, Xm, Ym
+
+
+def _intersect_deforming(p: SinusoidParams, G: np.ndarray, x, y, sx: float, sy: float,
+                         t: float):
+    """Exact ray-plane intersection with the plane deformed by ``I + G t``: the material
+    point ``M = X_c + Xm e1 + Ym e2`` is at ``X_c + U t + (I + G t)(M - X_c)``.  Along the
+    ray ``s + Z r``, ``r = (x/f, y/f, 1)``: ``q = s + Z r - X_c - U t = Xm c1 + Ym c2``
+    with ``c_i = (I + G t) e_i``, so ``q`` lies in the plane spanned by ``c1, c2`` (normal
+    ``N = c1 x c2``), which gives ``Z``, then ``(Xm, Ym)`` from the 2 x 2 Gram system."""
+    A = np.eye(3) + G * t
+    c1 = A @ np.array([1.0, 0.0, p.Z_X])
+    c2 = A @ np.array([0.0, 1.0, p.Z_Y])
+    N = np.cross(c1, c2)
+    b = np.array([sx - p.U_X * t, sy - p.U_Y * t, -p.Z0 - p.U_Z * t])   # s - X_c - U t
+    rdotN = (x / p.f) * N[0] + (y / p.f) * N[1] + N[2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Z = -(b @ N) / rdotN
+    if np.any(rdotN <= 0) or not np.all(Z > 0):
+        raise ParameterError(
+            "the deforming plane is seen edge-on or behind a camera for some pixel at "
+            f"t = {t:g} (Z_X={p.Z_X}, Z_Y={p.Z_Y}, growth={p.growth}, rotation={p.rotation}, "
+            f"image {p.height}x{p.width}); reduce the slopes, the gradient or the frames")
+    q = (b[0] + Z * x / p.f, b[1] + Z * y / p.f, b[2] + Z)
+    d1 = c1[0] * q[0] + c1[1] * q[1] + c1[2] * q[2]
+    d2 = c2[0] * q[0] + c2[1] * q[1] + c2[2] * q[2]
+    g11, g12, g22 = c1 @ c1, c1 @ c2, c2 @ c2
+    det = g11 * g22 - g12 * g12
+    return Z, (g22 * d1 - g12 * d2) / det, (g11 * d2 - g12 * d1) / det
 
 
 def make_sinusoid(params: SinusoidParams | None = None, *, dtype=np.float64,
@@ -235,13 +317,18 @@ def make_sinusoid(params: SinusoidParams | None = None, *, dtype=np.float64,
     ky = 2 * np.pi / (p.wavelength_y * p.Z0 / p.f)
     vol = np.empty((p.frames, Sy, Sx, p.height, p.width), dtype=dtype)
     rng = np.random.default_rng(p.seed)
+    # a plane that only translates keeps the paper's closed form (bit for bit as before)
+    G = velocity_gradient(p) if p.deforms else None
     for k in range(p.frames):
         t = (k - p.ref_frame) * p.frame_interval
         for i in range(Sy):
             sy = (i - (Sy - 1) / 2.0) * dsy
             for j in range(Sx):
                 sx = (j - (Sx - 1) / 2.0) * dsx
-                _, Xm, Ym = _intersect(p, x, y, sx, sy, t)
+                if G is None:
+                    _, Xm, Ym = _intersect(p, x, y, sx, sy, t)
+                else:
+                    _, Xm, Ym = _intersect_deforming(p, G, x, y, sx, sy, t)
                 h = ((p.a1 + p.a1x * Xm + p.a1y * Ym) * t
                      + (p.a2 + p.a2x * Xm + p.a2y * Ym) * t * t)
                 if p.texture == "sum":
@@ -314,18 +401,35 @@ def ground_truth(p: SinusoidParams) -> dict[str, np.ndarray]:
     Returns
     -------
     dict of str to ndarray, each shape (H, W)
-        ``Z, Zx, Zy, Ux, Uy, Uz, a1, a2, a1x, a1y, a2x, a2y``.  Motion and brightness
-        parameters are converted to per-frame units with ``frame_interval``; ``a1`` and
-        ``a2`` are the local values ``a1 + a1x X + a1y Y`` at the surface point seen.
+        ``Z, Zx, Zy, Ux, Uy, Uz, growth, rotation, Zx_t, Zy_t, a1, a2, a1x, a1y, a2x,
+        a2y``.  Motion and brightness parameters are converted to per-frame units with
+        ``frame_interval``; ``Ux, Uy, Uz`` are the velocity of the surface point each
+        pixel sees, and ``a1``, ``a2`` the local values ``a1 + a1x X + a1y Y`` there.
     """
     x, y = _pixel_grid(p)
     Z, Xm, Ym = _intersect(p, x, y, 0.0, 0.0, 0.0)
     dt = p.frame_interval
     const = lambda v: np.full(Z.shape, float(v))  # noqa: E731
+    G = velocity_gradient(p)
+    # the velocity of the material point each pixel sees, V = U + G (M - X_c)
+    e1, e2 = np.array([1.0, 0.0, p.Z_X]), np.array([0.0, 1.0, p.Z_Y])
+    U = np.array([p.U_X, p.U_Y, p.U_Z])
+    V = [U[i] + (G[i] @ e1) * Xm + (G[i] @ e2) * Ym for i in range(3)]
+    # growth: the surface divergence tr((I - n n^T) G); rotation: w . n with w the axial
+    # vector of G's antisymmetric part
+    n = _normal(p)
+    growth = float(np.trace((np.eye(3) - np.outer(n, n)) @ G))
+    w = 0.5 * np.array([G[2, 1] - G[1, 2], G[0, 2] - G[2, 0], G[1, 0] - G[0, 1]])
+    # slopes' rates: the normal e1 x e2 = (-Z_X, -Z_Y, 1) moves by G e1 x e2 + e1 x G e2;
+    # Z_X = -N_x / N_z, so dZ_X/dt = -dN_x - Z_X dN_z (N_z = 1)
+    dN = np.cross(G @ e1, e2) + np.cross(e1, G @ e2)
     return {
         "Z": Z,
         "Zx": const(p.Z_X), "Zy": const(p.Z_Y),
-        "Ux": const(p.U_X * dt), "Uy": const(p.U_Y * dt), "Uz": const(p.U_Z * dt),
+        "Ux": V[0] * dt, "Uy": V[1] * dt, "Uz": V[2] * dt,
+        "growth": const(growth * dt), "rotation": const(float(w @ n) * dt),
+        "Zx_t": const((-dN[0] - p.Z_X * dN[2]) * dt),
+        "Zy_t": const((-dN[1] - p.Z_Y * dN[2]) * dt),
         "a1": (p.a1 + p.a1x * Xm + p.a1y * Ym) * dt,
         "a2": (p.a2 + p.a2x * Xm + p.a2y * Ym) * dt * dt,
         "a1x": const(p.a1x * dt), "a1y": const(p.a1y * dt),
@@ -356,7 +460,11 @@ def check_params(p: SinusoidParams) -> None:
             for j in range(Sx):
                 sx = (j - (Sx - 1) / 2.0) * p.spacing[0]
                 sy = (i - (Sy - 1) / 2.0) * p.spacing[1]
-                _, Xm, Ym = _intersect(p, xb, yb, sx, sy, t)
+                if p.deforms:
+                    _, Xm, Ym = _intersect_deforming(p, velocity_gradient(p), xb, yb, sx,
+                                                     sy, t)
+                else:
+                    _, Xm, Ym = _intersect(p, xb, yb, sx, sy, t)
                 h = ((p.a1 + p.a1x * Xm + p.a1y * Ym) * t
                      + (p.a2 + p.a2x * Xm + p.a2y * Ym) * t * t)
                 if np.max(np.abs(h)) > _MAX_EXPONENT:

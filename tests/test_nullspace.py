@@ -74,7 +74,7 @@ def test_fast_solver_finds_the_planted_solution():
     ns = null_space_packed(planes, index, model)
     assert ns.valid.all()
     np.testing.assert_allclose(ns.P, P_true, rtol=0, atol=2e-14)
-    rows = [model.index(r) for r in COMBINED_ROWS]
+    rows = [model.index(r) for r in COMBINED_ROWS if r in model.rows]
     np.testing.assert_allclose(ns.g[:, rows], _g_by_definition(J, model, free)[:, rows],
                                rtol=2e-14)
     tr = np.trace(J, axis1=1, axis2=2)

@@ -28,7 +28,7 @@ def test_estimate_is_a_mapping_with_a_short_repr():
     with pytest.raises(KeyError, match="'a1x': this estimate holds Z, Zx"):
         e["a1x"]
     text = repr(e)
-    assert text.startswith("<Estimate model hf, 64x64, valid 100.0 % of ")
+    assert text.startswith("<Estimate model hf, motion translation, 64x64, valid 100.0 % of ")
     assert "array" not in text and len(text) < 200, text
     assert e == e and e != estimate(sv.volume, sv.focal_length, sv.camera_spacing,
                                     model="hf", sigma=4.0, window=17)

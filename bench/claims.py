@@ -66,6 +66,8 @@ def _curve(df, model, quantity, param, noise=0.0) -> pd.Series:
     """Error ``q`` of ``quantity`` against ``param`` (index: value, sorted by |value|)."""
     d = df[(df.model == model) & (df.quantity == quantity) & (df.param == param)
            & (df.noise == noise)]
+    if "motion" in d:                # the paper's observations are about its own model
+        d = d[d.motion == "translation"]
     s = d.groupby("value")["q"].mean()
     return s.iloc[np.argsort(np.abs(s.index.to_numpy()))]
 

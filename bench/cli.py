@@ -41,7 +41,7 @@ def _add_sinusoid_args(p: argparse.ArgumentParser) -> None:
 
 
 def _add_estimator_args(p: argparse.ArgumentParser) -> None:
-    from gridflow.estimator import COMBINE, DEFAULTS, FILTER_NAMES, METHODS
+    from gridflow.estimator import COMBINE, DEFAULTS, FILTER_NAMES, METHODS, MOTIONS
     from gridflow.estimator.lightfield import SELECT_DEFAULTS
 
     lines, occl = SELECT_DEFAULTS["lines"], SELECT_DEFAULTS["coarse"]
@@ -51,6 +51,11 @@ def _add_estimator_args(p: argparse.ArgumentParser) -> None:
                         "one frame), a comma-separated list, or 'all'; several models share "
                         "one structure tensor, and each is written to OUTPUT with _MODEL "
                         "before the suffix")
+    g.add_argument("--motion", choices=MOTIONS, default=DEFAULTS["motion"],
+                   help="motion model: the paper's translating patch (default), or "
+                        "'affine': a velocity varying across the surface, which adds the "
+                        "maps growth (relative area rate), rotation (about the normal) and "
+                        "the slopes' rates Zx_t, Zy_t; needs 5 frames (docs/model.md)")
     g.add_argument("--sigma", type=float, default=None,
                    help=f"Gaussian sigma, px (default {DEFAULTS['sigma']:g}; with --shears "
                         f"{occl[0]:g}, or {lines[0]:g} with --select lines or occlusion)")
@@ -87,7 +92,8 @@ def _estimator_settings(a) -> dict:
     """The estimator settings given on the command line (unset ones keep the library's
     defaults, or the light-field choice's)."""
     s = dict(filters=a.filters, temporal_radius=a.temporal_radius, ref_frame=a.ref_frame,
-             method=a.method, slant_correction=not a.no_slant_correction, combine=a.combine)
+             method=a.method, slant_correction=not a.no_slant_correction, combine=a.combine,
+             motion=a.motion)
     if a.sigma is not None:
         s["sigma"] = a.sigma
     if a.window is not None:
@@ -190,7 +196,7 @@ def cmd_sweep(a) -> int:
         if not (a.param and a.values):
             raise UsageError("--param and --values go together")
         spec.axes = [(a.param, list(a.values))]
-    for key in ("models", "noise", "seeds", "setup"):
+    for key in ("models", "motions", "noise", "seeds", "setup"):
         if getattr(a, key) is not None:
             setattr(spec, key, getattr(a, key))
     spec.validate(a.spec or "command line")
@@ -375,6 +381,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--param", help="parameter to sweep (replaces the spec's axes)")
     p.add_argument("--values", type=float, nargs="+", help="values of --param")
     p.add_argument("--models", nargs="+", help="models (default: all three)")
+    p.add_argument("--motions", nargs="+",
+                   help="motion models, each run with every model (default translation)")
     p.add_argument("--noise", type=float, nargs="+", help="noise levels sigma_n")
     p.add_argument("--seeds", type=int, nargs="+", help="noise seeds")
     p.add_argument("--setup", choices=sorted(SETUPS), default=None,

@@ -189,6 +189,9 @@ def _estimate_refocused(path, data, output, models, settings, shears, select) ->
     if models not in (None, ("bcc",)):
         raise UsageError(f"--shears takes model bcc (a light field of one frame), got "
                          f"{','.join(models)}")
+    if settings.get("motion", "translation") != "translation":
+        raise UsageError(f"--shears refocuses a light field of one frame, which has no "
+                         f"motion; --motion {settings['motion']} does not apply")
     geometry = data.meta.get("hci")
     if shears == "auto":
         shears = stated_shears((geometry or {}).get("disp_range"))

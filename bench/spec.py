@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from gridflow.errors import GridflowError
-from gridflow.estimator import MODELS, EstimatorSettings, InputError
+from gridflow.estimator import MODELS, MOTIONS, EstimatorSettings, InputError
 from gridflow.generators import SinusoidParams, check_params
 from gridflow.volume import physical_memory
 
@@ -32,7 +32,8 @@ _SWEEPABLE = {f.name for f in fields(SinusoidParams)} - {"grid", "spacing", "see
 SWEEPABLE = tuple(sorted(_SWEEPABLE))
 # generator parameters that are integers (sizes); spec values for them must be integral
 _INTEGER = {f.name for f in fields(SinusoidParams) if f.type in ("int", int)}
-_SECTION_KEYS = {"sweep": {"name", "models", "noise", "seeds", "setup"}, "base": None,
+_SECTION_KEYS = {"sweep": {"name", "models", "motions", "noise", "seeds", "setup"},
+                 "base": None,
                  "estimator": None, "axis": {"param", "values"}}
 
 
@@ -58,6 +59,11 @@ class SweepSpec:
     ----------
     name : str
     models : list of str
+        Brightness models (:data:`gridflow.estimator.MODELS`).
+    motions : list of str
+        Motion models (:data:`gridflow.estimator.MOTIONS`); every brightness model runs
+        with each, the models of one motion sharing a structure tensor.  Default the
+        paper's ``translation``.
     noise : list of float
     seeds : list of int
     base : dict
@@ -79,6 +85,7 @@ class SweepSpec:
     estimator: dict = field(default_factory=dict)
     axes: list[tuple[str, list[float]]] = field(default_factory=list)
     setup: str = "gridflow"
+    motions: list[str] = field(default_factory=lambda: ["translation"])
 
     @classmethod
     def from_toml(cls, path) -> "SweepSpec":
@@ -125,7 +132,9 @@ class SweepSpec:
                    noise=_list(sw.get("noise", [0.0]), float, "[sweep] noise", source),
                    seeds=_list(sw.get("seeds", [0]), int, "[sweep] seeds", source),
                    base=dict(raw.get("base", {})), estimator=dict(raw.get("estimator", {})),
-                   axes=axes, setup=sw.get("setup", "gridflow"))
+                   axes=axes, setup=sw.get("setup", "gridflow"),
+                   motions=_list(sw.get("motions", ["translation"]), str, "[sweep] motions",
+                                 source))
         spec.validate(source)
         return spec
 
@@ -145,7 +154,15 @@ class SweepSpec:
         bad = [m for m in self.models if m not in MODELS]
         if bad or not self.models:
             raise SpecError(f"{source}: unknown or no model(s) {bad}; expected some of {MODELS}")
-        for key, values in (("models", self.models), ("noise", self.noise),
+        badm = [m for m in self.motions if m not in MOTIONS]
+        if badm or not self.motions:
+            raise SpecError(f"{source}: unknown or no motion model(s) {badm}; expected some "
+                            f"of {MOTIONS}")
+        if "motion" in self.estimator:
+            raise SpecError(f"{source}: [estimator] motion: give the motion models as "
+                            "[sweep] motions = [...] (every model runs with each)")
+        for key, values in (("models", self.models), ("motions", self.motions),
+                            ("noise", self.noise),
                             ("seeds", self.seeds)):
             if len(set(values)) != len(values):
                 raise SpecError(f"{source}: [sweep] {key} repeats a value: {values}")
@@ -221,7 +238,7 @@ class SweepSpec:
     def as_dict(self) -> dict:
         """The spec as plain data (what the provenance sidecar and the resume key record)."""
         return {"name": self.name, "setup": self.setup, "models": list(self.models),
-                "noise": list(self.noise),
+                "motions": list(self.motions), "noise": list(self.noise),
                 "seeds": list(self.seeds), "base": dict(self.base),
                 "estimator": dict(self.estimator),
                 "axes": [{"param": p, "values": list(v)} for p, v in self.axes]}

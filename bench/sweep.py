@@ -39,9 +39,10 @@ from .spec import Point, SpecError, SweepSpec
 __all__ = ["run_point", "run_group", "run_sweep", "SweepInterrupted", "COLUMNS",
            "provenance", "read_sweep_csv"]
 
-COLUMNS = ["sweep", "param", "value", "noise", "seed", "model", "quantity", "measure", "q",
-           "q_rel", "q_abs", "n_pixels", "n_invalid", "generator", "estimator"]
-QUANTITY_ORDER = ["Z", "Zx", "Zy", "Ux", "Uy", "Uz", "a1", "a2", "a1x", "a1y", "a2x", "a2y"]
+COLUMNS = ["sweep", "param", "value", "noise", "seed", "model", "motion", "quantity",
+           "measure", "q", "q_rel", "q_abs", "n_pixels", "n_invalid", "generator", "estimator"]
+QUANTITY_ORDER = ["Z", "Zx", "Zy", "Ux", "Uy", "Uz", "growth", "rotation", "Zx_t", "Zy_t",
+                  "a1", "a2", "a1x", "a1y", "a2x", "a2y"]
 # everything a row of the CSV depends on: the code of these modules (besides the spec and
 # the library versions) keys a finished point, so a changed module is never mixed in
 _ROW_SOURCES = ("gridflow.estimator", "gridflow.generators", "gridflow.volume", "gridflow.io",
@@ -121,8 +122,10 @@ def run_point(spec: SweepSpec, point: Point, clean=None) -> pd.DataFrame:
         sv = make_sinusoid(params)
     else:
         sv = add_noise(clean, params.noise, params.seed)
-    res = estimate_models(sv.volume, sv.focal_length, sv.camera_spacing, models=spec.models,
-                          principal_point=sv.principal_point, **spec.estimator_settings())
+    res = {motion: estimate_models(sv.volume, sv.focal_length, sv.camera_spacing,
+                                   models=spec.models, principal_point=sv.principal_point,
+                                   motion=motion, **spec.estimator_settings())
+           for motion in spec.motions}
     truth = dict(sv.truth)
     if get_setup(spec.setup).brightness_reference == "global":
         # Eq. 22 against the swept brightness parameter's own value (the paper's reading
@@ -132,19 +135,22 @@ def run_point(spec: SweepSpec, point: Point, clean=None) -> pd.DataFrame:
         truth["a2"] = np.full_like(truth["a2"], params.a2 * fi * fi)
     gen = _diff_json(params.as_dict(), SinusoidParams().as_dict())
     rows = []
-    for model in spec.models:
-        e = res[model]
-        f = e.settings["filters"]
-        # the settings the estimate reports beyond the spec's own: the model, the filters
-        # chosen per axis (the spec's where it had the samples) and the backend that ran
-        # (one of the same method's implementations) are not settings of the sweep
-        est = _diff_json({k: v for k, v in e.settings.items() if k != "backend"},
-                         {**DEFAULTS, "model": model, "filters_xy": f, "filters_sx": f,
-                          "filters_sy": f, "filters_t": f})
-        for r in evaluate(e.maps, truth, e.interior):
-            rows.append({"sweep": spec.name, "param": point.param, "value": point.value,
-                         "noise": point.noise, "seed": point.seed, "model": model, **r,
-                         "generator": gen, "estimator": est})
+    for motion in spec.motions:
+        for model in spec.models:
+            e = res[motion][model]
+            f = e.settings["filters"]
+            # the settings the estimate reports beyond the spec's own: the model and the
+            # motion (columns of their own), the filters chosen per axis (the spec's
+            # where it had the samples) and the backend that ran (one of the same
+            # method's implementations) are not settings of the sweep
+            est = _diff_json({k: v for k, v in e.settings.items() if k != "backend"},
+                             {**DEFAULTS, "model": model, "motion": motion,
+                              "filters_xy": f, "filters_sx": f, "filters_sy": f,
+                              "filters_t": f})
+            for r in evaluate(e.maps, truth, e.interior):
+                rows.append({"sweep": spec.name, "param": point.param, "value": point.value,
+                             "noise": point.noise, "seed": point.seed, "model": model,
+                             "motion": motion, **r, "generator": gen, "estimator": est})
     df = pd.DataFrame(rows)
     return df[COLUMNS]
 
@@ -188,7 +194,7 @@ def _groups(todo) -> list[list]:
 def _order(df: pd.DataFrame, spec: SweepSpec) -> pd.DataFrame:
     pts = {(p.param, p.value, p.noise, p.seed): i for i, p in enumerate(spec.points())}
     key = df.apply(lambda r: (pts[(r.param, r.value, r.noise, r.seed)],
-                              spec.models.index(r.model),
+                              spec.motions.index(r.motion), spec.models.index(r.model),
                               QUANTITY_ORDER.index(r.quantity)
                               if r.quantity in QUANTITY_ORDER else 99), axis=1)
     return df.iloc[np.argsort(key.to_numpy(), kind="stable")].reset_index(drop=True)
@@ -324,6 +330,9 @@ def read_sweep_csv(path) -> pd.DataFrame:
         raise SpecError(f"{path}: not a readable CSV ({exc})") from None
     need = {"param", "value", "model", "quantity", "noise", "q_rel", "q_abs"}
     missing = need - set(df)
+    if "motion" not in df and not missing:
+        # made before motion models existed: every row is the paper's translation
+        df.insert(df.columns.get_loc("model") + 1, "motion", "translation")
     if missing:
         raise SpecError(f"{path}: not a sweep CSV (missing columns {sorted(missing)})")
     for col in ("value", "noise", "q_rel", "q_abs"):

@@ -1,0 +1,201 @@
+"""Affine surface motion: the generator's deforming planes and ``motion="affine"``.
+
+The generator's truths are checked against the deformation itself, by finite
+differences of tracked material vectors (independent of the closed forms it uses); the
+estimator against those truths on exact renderings in the paper's geometry (Z0 = 100,
+f = 1000 px, 5 x 5 cameras 0.05 apart, 9 frames, U_Z = 0.1, 192^2).  Bounds: 3x the
+errors measured at 586d64e (``MEASURED``; deterministic noise-free renderings), each also
+under the goal the growth issue sets where it sets one (2 % for growth, U_Z, rotation;
+1e-3 for U_Z and 2e-5 for |growth| on a translating plane).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gridflow.bench.metrics import evaluate
+from gridflow.estimator import InputError, estimate, estimate_models
+from gridflow.generators import SinusoidParams, make_sinusoid
+from gridflow.generators.sinusoid import velocity_gradient
+
+MARGIN = 3.0
+CASES = {
+    "growth": dict(growth=1e-3),
+    "growth slope brightness": dict(growth=1e-3, Z_X=0.4, a1=0.05, a1x=0.002),
+    "rotation": dict(rotation=2e-3),
+    "all together": dict(growth=1e-3, rotation=2e-3, U_X=0.02, U_Y=-0.01),
+    "translation only": dict(),
+    "tilting": dict(G_XZ=1e-3, G_ZX=-1e-3),
+    "anisotropic": dict(G_XX=1e-3),
+    "shear": dict(G_XY=1e-3),
+}
+MEASURED = {
+    ("growth", "bcc"): {"Ux": ("abs", 8.9e-07), "Uy": ("abs", 7.9e-07), "Uz": ("rel", 0.00029), "growth": ("rel", 0.00053), "rotation": ("abs", 4.4e-07), "Zx_t": ("abs", 1.8e-07), "Zy_t": ("abs", 2.4e-09)},
+    ("growth", "full"): {"Ux": ("abs", 8.9e-07), "Uy": ("abs", 1.2e-06), "Uz": ("rel", 0.00029), "growth": ("rel", 0.0072), "rotation": ("abs", 2.5e-07), "Zx_t": ("abs", 1.3e-07), "Zy_t": ("abs", 3.3e-08)},
+    ("growth slope brightness", "full"): {"Ux": ("abs", 1.3e-05), "Uy": ("abs", 1.2e-06), "Uz": ("rel", 0.00023), "growth": ("rel", 0.0072), "rotation": ("abs", 2.9e-07), "Zx_t": ("abs", 2.4e-06), "Zy_t": ("abs", 6e-07)},
+    ("rotation", "bcc"): {"Ux": ("abs", 1.5e-06), "Uy": ("abs", 1.1e-06), "Uz": ("rel", 0.00049), "growth": ("abs", 1e-06), "rotation": ("rel", 0.00058), "Zx_t": ("abs", 2.5e-06), "Zy_t": ("abs", 5e-07)},
+    ("rotation", "full"): {"Ux": ("abs", 1.6e-06), "Uy": ("abs", 3e-06), "Uz": ("rel", 0.0005), "growth": ("abs", 1.9e-05), "rotation": ("rel", 0.00032), "Zx_t": ("abs", 1.7e-06), "Zy_t": ("abs", 4.1e-06)},
+    ("all together", "bcc"): {"Ux": ("rel", 5e-05), "Uy": ("abs", 7.7e-07), "Uz": ("rel", 0.00028), "growth": ("rel", 0.00065), "rotation": ("rel", 0.00021), "Zx_t": ("abs", 1.3e-05), "Zy_t": ("abs", 1.2e-06)},
+    ("all together", "full"): {"Ux": ("rel", 5.2e-05), "Uy": ("abs", 1.1e-06), "Uz": ("rel", 0.00029), "growth": ("rel", 0.0053), "rotation": ("rel", 0.00014), "Zx_t": ("abs", 8.7e-06), "Zy_t": ("abs", 8e-06)},
+    ("translation only", "bcc"): {"Ux": ("abs", 1.5e-06), "Uy": ("abs", 1.3e-06), "Uz": ("rel", 0.0005), "growth": ("abs", 1.1e-06), "rotation": ("abs", 1.2e-06), "Zx_t": ("abs", 7e-07), "Zy_t": ("abs", 8e-09)},
+    ("translation only", "full"): {"Ux": ("abs", 1.5e-06), "Uy": ("abs", 3e-06), "Uz": ("rel", 0.0005), "growth": ("abs", 1.9e-05), "rotation": ("abs", 6.5e-07), "Zx_t": ("abs", 5.3e-07), "Zy_t": ("abs", 1.3e-07)},
+    ("tilting", "bcc"): {"Ux": ("abs", 2e-05), "Uy": ("abs", 1.5e-06), "Uz": ("rel", 0.0005), "growth": ("abs", 1.3e-06), "rotation": ("abs", 2.1e-06), "Zx_t": ("rel", 0.0011), "Zy_t": ("abs", 8.3e-09)},
+    ("tilting", "full"): {"Ux": ("abs", 2e-05), "Uy": ("abs", 3e-06), "Uz": ("rel", 0.0005), "growth": ("abs", 1.9e-05), "rotation": ("abs", 1.9e-06), "Zx_t": ("rel", 0.00098), "Zy_t": ("abs", 1.4e-07)},
+    ("anisotropic", "bcc"): {"Ux": ("abs", 2.3e-07), "Uy": ("abs", 9e-08), "Uz": ("rel", 7.5e-05), "growth": ("rel", 0.00044), "rotation": ("abs", 2.8e-07), "Zx_t": ("abs", 7.9e-12), "Zy_t": ("abs", 4.4e-09)},
+    ("anisotropic", "full"): {"Ux": ("abs", 2.3e-07), "Uy": ("abs", 7.8e-07), "Uz": ("rel", 7.5e-05), "growth": ("rel", 0.005), "rotation": ("abs", 1.7e-07), "Zx_t": ("abs", 4.7e-11), "Zy_t": ("abs", 2.7e-09)},
+    ("shear", "bcc"): {"Ux": ("abs", 1.5e-06), "Uy": ("abs", 1.3e-06), "Uz": ("rel", 0.0005), "growth": ("abs", 1.1e-06), "rotation": ("rel", 0.0023), "Zx_t": ("abs", 1.2e-06), "Zy_t": ("abs", 1.8e-07)},
+    ("shear", "full"): {"Ux": ("abs", 1.6e-06), "Uy": ("abs", 3e-06), "Uz": ("rel", 0.0005), "growth": ("abs", 1.9e-05), "rotation": ("rel", 0.0013), "Zx_t": ("abs", 8.4e-07), "Zy_t": ("abs", 1.1e-06)},
+}
+# the translation model on the same volumes, measured: Q_rel(U_Z) 0.50 under growth (and
+# with slope and brightness change), 0.98 under anisotropic growth, 0.031 when the plane
+# tilts; 2.7e-4 under rotation about the normal (which does not change the divergence)
+TRANSLATION_UZ = {"growth": 0.5, "growth slope brightness": 0.5, "all together": 0.5,
+                  "anisotropic": 0.98, "tilting": 0.031}
+
+
+# --- the generator's truths, against the deformation itself ----------------------------------
+
+def _deformed(p: SinusoidParams, t: float):
+    """The plane's tangents e1 = (1, 0, Z_X), e2 = (0, 1, Z_Y) carried by I + G t."""
+    A = np.eye(3) + velocity_gradient(p) * t
+    return A @ np.array([1.0, 0.0, p.Z_X]), A @ np.array([0.0, 1.0, p.Z_Y])
+
+
+@pytest.mark.parametrize("kw", [dict(growth=2e-3), dict(rotation=3e-3, Z_X=0.4, Z_Y=-0.2),
+                                dict(G_XY=1e-3, G_YX=-2e-3, G_XZ=1e-3, Z_X=0.3),
+                                dict(growth=1e-3, rotation=-1e-3, G_ZY=2e-3, Z_Y=0.5)])
+def test_generator_truths_are_the_deformation_rates(kw):
+    """growth = d ln(area)/dt of the parallelogram the tangents span; rotation = the
+    mean rate at which in-plane directions turn about the normal; Z_x's rate = that of
+    -N_x / N_z of the carried plane; all by central differences (h = 1e-3 time units,
+    truncation ~h^2 |G|^3: far below 1e-9 here)."""
+    p = SinusoidParams(frame_interval=2.0, **kw)
+    truth = make_sinusoid(p.replace(height=20, width=20)).truth
+    h = 1e-3
+    (a1, a2), (b1, b2) = _deformed(p, h), _deformed(p, -h)
+    area = lambda u, v: np.linalg.norm(np.cross(u, v))  # noqa: E731
+    growth = (np.log(area(a1, a2)) - np.log(area(b1, b2))) / (2 * h)
+    np.testing.assert_allclose(truth["growth"], growth * 2.0, rtol=1e-6, atol=1e-12)
+
+    # each material direction of the plane turns about the normal at a rate ω_n plus
+    # the symmetric part's, which varies as cos/sin 2θ and averages out over a half turn
+    e1, e2 = _deformed(p, 0.0)
+    n0 = np.cross(e1, e2) / np.linalg.norm(np.cross(e1, e2))
+    t1 = e1 / np.linalg.norm(e1)
+    t2 = np.cross(n0, t1)
+    G = velocity_gradient(p)
+    rates = []
+    for th in np.linspace(0, np.pi, 64, endpoint=False):
+        d = np.cos(th) * t1 + np.sin(th) * t2
+        dp, dm = (np.eye(3) + G * h) @ d, (np.eye(3) - G * h) @ d
+        rates.append(np.arctan2(np.cross(dm, dp) @ n0, dm @ dp) / (2 * h))
+    np.testing.assert_allclose(truth["rotation"], np.mean(rates) * 2.0, rtol=1e-5,
+                               atol=1e-11)
+
+    def slope(t):
+        u, v = _deformed(p, t)
+        N = np.cross(u, v)
+        return -N[0] / N[2], -N[1] / N[2]
+
+    (zxp, zyp), (zxm, zym) = slope(h), slope(-h)
+    np.testing.assert_allclose(truth["Zx_t"], (zxp - zxm) / (2 * h) * 2.0, rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(truth["Zy_t"], (zyp - zym) / (2 * h) * 2.0, rtol=1e-6, atol=1e-12)
+
+
+def test_a_translating_plane_renders_as_before():
+    """The deformation path is taken only where a gradient is set; a plane that only
+    translates keeps the paper's closed form, and a vanishing gradient agrees with it to
+    roundoff."""
+    a = make_sinusoid(height=40, width=40, U_X=0.03, Z_X=0.2)
+    b = make_sinusoid(height=40, width=40, U_X=0.03, Z_X=0.2, G_XX=1e-15)
+    assert not a.params.deforms and b.params.deforms
+    np.testing.assert_allclose(b.volume, a.volume, rtol=0, atol=1e-10)
+
+
+# --- the estimator ------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def affine_results():
+    out = {}
+    for name, kw in CASES.items():
+        sv = make_sinusoid(**kw)
+        models = ("full",) if name == "growth slope brightness" else ("bcc", "full")
+        res = estimate_models(sv.volume, sv.focal_length, sv.camera_spacing, models=models,
+                              motion="affine")
+        for m, e in res.items():
+            out[(name, m)] = {r["quantity"]: r for r in evaluate(e.maps, sv.truth, e.interior)}
+    return out
+
+
+@pytest.mark.parametrize("case, model", sorted(MEASURED))
+def test_affine_motion_against_exact_truth(affine_results, case, model):
+    rows = affine_results[(case, model)]
+    bad = []
+    for q, (measure, value) in MEASURED[(case, model)].items():
+        r = rows[q]
+        assert r["measure"] == measure and r["n_invalid"] == 0, (case, model, q)
+        if not r["q"] <= MARGIN * value:
+            bad.append(f"{q}: {r['q']:.3g} > {MARGIN:g} x measured {value:.2g}")
+    assert not bad, f"{case}, {model}: " + "; ".join(bad)
+
+
+def test_the_growth_issue_goals(affine_results):
+    """The goals as the issue states them (each bound above is inside them)."""
+    r = affine_results
+    for case in ("growth", "growth slope brightness", "all together"):
+        assert r[(case, "full")]["growth"]["q_rel"] <= 0.02
+        assert r[(case, "full")]["Uz"]["q_rel"] <= 0.02
+    assert r[("rotation", "full")]["rotation"]["q_rel"] <= 0.02
+    assert r[("translation only", "full")]["Uz"]["q_rel"] <= 1e-3
+    assert r[("translation only", "full")]["growth"]["q_abs"] <= 2e-5
+
+
+@pytest.mark.parametrize("case", sorted(TRANSLATION_UZ))
+def test_the_translation_model_reads_growth_as_divergence(case):
+    """Outlook of the paper: deformation corrupts the translation model's U_Z."""
+    sv = make_sinusoid(**CASES[case])
+    e = estimate(sv.volume, sv.focal_length, sv.camera_spacing, model="full")
+    (uz,) = [r for r in evaluate(e.maps, sv.truth, e.interior) if r["quantity"] == "Uz"]
+    assert uz["q_rel"] == pytest.approx(TRANSLATION_UZ[case], rel=0.05)
+
+
+def test_affine_fast_path_agrees_with_reference():
+    """Fast (numba) against reference (LAPACK) on a growing, rotating, slanted plane at
+    160^2, against each quantity's scale here (Z 100, U_Z 0.1, the rates 1e-3): measured
+    6.4e-13 (Z), 7.8e-11 (U_Z), 2.2e-10 (growth), 7.2e-11 (rotation), 1.1e-9 (Z_x's rate);
+    asked: 1e-8."""
+    sv = make_sinusoid(growth=1e-3, rotation=1e-3, U_X=0.02, Z_X=0.2, Z_Y=-0.1, height=160,
+                       width=160)
+    a = estimate(sv.volume, sv.focal_length, sv.camera_spacing, motion="affine")
+    b = estimate(sv.volume, sv.focal_length, sv.camera_spacing, motion="affine",
+                 method="reference")
+    assert a.settings["backend"] == "numba"
+    for q, scale in (("Z", 100.0), ("Uz", 0.1), ("growth", 1e-3), ("rotation", 1e-3),
+                     ("Zx_t", 1e-3)):
+        assert np.nanmax(np.abs(a[q] - b[q])) <= 1e-8 * scale, q
+
+
+@pytest.mark.parametrize("grid", [(1, 5), (3, 3)])
+def test_affine_on_small_and_one_dimensional_grids(grid):
+    """A row of 5 cameras, or 3 x 3: measured Q_rel(growth) 0.71 % / 0.87 %, Q_rel(U_Z)
+    2.9e-4 / 1.5e-4 (growth 1e-3 and rotation 1e-3 per frame, full model); asked 3x."""
+    sv = make_sinusoid(growth=1e-3, rotation=1e-3, grid=grid)
+    e = estimate(sv.volume, sv.focal_length, sv.camera_spacing, motion="affine")
+    r = {x["quantity"]: x for x in evaluate(e.maps, sv.truth, e.interior)}
+    want = {(1, 5): (0.0071, 2.9e-4), (3, 3): (0.0087, 1.5e-4)}[grid]
+    assert r["growth"]["q_rel"] <= MARGIN * want[0]
+    assert r["Uz"]["q_rel"] <= MARGIN * want[1]
+
+
+def test_affine_needs_time():
+    sv = make_sinusoid(height=40, width=40, frames=1)
+    with pytest.raises(InputError, match="motion 'affine' needs a time axis"):
+        estimate(sv.volume, sv.focal_length, sv.camera_spacing, model="bcc", sigma=2.0,
+                 window=9, motion="affine")
+    sv = make_sinusoid(height=40, width=40, frames=3)
+    with pytest.raises(InputError, match="too few frames"):
+        estimate(sv.volume, sv.focal_length, sv.camera_spacing, model="bcc", sigma=2.0,
+                 window=9, motion="affine")
+    with pytest.raises(InputError, match="motion must be one of"):
+        estimate(sv.volume, sv.focal_length, sv.camera_spacing, motion="rigid")

@@ -58,11 +58,13 @@ NUMERICS  := $(wildcard estimator/*.py generators/*.py) base/volume.py base/io.p
              bench/setups.py
 SWEEP_CSV := results/sweep_paper.csv
 SETUP_CSV := results/sweep_paper_setup.csv
+GROWTH_CSV := results/sweep_growth.csv
 FIGDIR    := results/figures
 FIGS      := $(FIGDIR)/fig1.png $(FIGDIR)/fig2.png $(FIGDIR)/fig3.png $(FIGDIR)/fig4.png \
-             $(FIGDIR)/fig3_paper_setup.png $(FIGDIR)/fig4_paper_setup.png
+             $(FIGDIR)/fig3_paper_setup.png $(FIGDIR)/fig4_paper_setup.png \
+             $(FIGDIR)/fig_growth.png
 OUTPUTS   := $(FIGS) results/claims.csv results/claims_paper_setup.csv results/cube.csv \
-             results/peers_depth.csv
+             results/peers_depth.csv results/claims_growth.csv results/leaf.csv
 CUBE_SRC  := $(wildcard estimator/*.py scenes/*.py) base/loader.py base/errors.py \
              bench/cube_experiment.py bench/figures.py bench/metrics.py bench/markdown.py
 
@@ -72,7 +74,7 @@ figures: $(STAMP) $(KERNELS)
 
 # Everything from scratch: delete the generated results, then rebuild them.
 reproduce: $(STAMP)
-	rm -rf $(OUTPUTS) $(SWEEP_CSV) $(SETUP_CSV) work/cube
+	rm -rf $(OUTPUTS) $(SWEEP_CSV) $(SETUP_CSV) $(GROWTH_CSV) work/cube
 	@$(MAKE) --no-print-directory figures
 
 $(SWEEP_CSV): bench/sweeps/paper.toml $(NUMERICS) | $(STAMP)
@@ -80,6 +82,15 @@ $(SWEEP_CSV): bench/sweeps/paper.toml $(NUMERICS) | $(STAMP)
 
 $(SETUP_CSV): bench/sweeps/paper_setup.toml $(NUMERICS) | $(STAMP)
 	$(BIN)/gridflow sweep $< -o $@
+
+$(GROWTH_CSV): bench/sweeps/growth.toml $(NUMERICS) | $(STAMP)
+	$(BIN)/gridflow sweep $< -o $@
+
+$(FIGDIR)/fig_growth.png: $(GROWTH_CSV) bench/figures.py | $(STAMP)
+	$(BIN)/gridflow figures --sweep $< --out $(FIGDIR)
+
+results/claims_growth.csv: $(GROWTH_CSV) bench/claims.py bench/markdown.py | $(STAMP)
+	$(BIN)/gridflow claims $< --write-csv $@ --write-doc docs/reproduction.md
 
 $(FIGDIR)/fig3.png $(FIGDIR)/fig4.png &: $(SWEEP_CSV) bench/figures.py | $(STAMP)
 	$(BIN)/gridflow figures --sweep $< --out $(FIGDIR)
@@ -93,6 +104,12 @@ $(FIGDIR)/fig2.png: bench/figures.py generators/sinusoid.py | $(STAMP)
 # The cube: rendered with POV-Ray into work/cube/ (cached, not committed), then estimated.
 $(FIGDIR)/fig1.png results/cube.csv &: $(CUBE_SRC) | $(STAMP) povray
 	$(BIN)/gridflow cube --csv results/cube.csv --fig-dir $(FIGDIR) --write-doc docs/reproduction.md
+
+# The growing leaf: rendered with POV-Ray into work/cube/ (cached), growth maps per region.
+LEAF_SRC := $(wildcard estimator/*.py scenes/*.py) base/loader.py base/errors.py \
+            bench/leaf_experiment.py bench/figures.py
+results/leaf.csv $(FIGDIR)/fig_leaf.png &: $(LEAF_SRC) | $(STAMP) povray
+	$(BIN)/gridflow leaf --csv results/leaf.csv --fig-dir $(FIGDIR)
 
 # gridflow and peer methods side by side: depth on the cube rendered as a light field with
 # large disparities, motion on sinusoids and the cube.
@@ -124,6 +141,8 @@ baseline: $(STAMP)
 	$(BIN)/gridflow claims $(SWEEP_CSV) --write-csv results/claims.csv --write-doc docs/reproduction.md
 	$(BIN)/gridflow sweep paper_setup -o $(SETUP_CSV)
 	$(BIN)/gridflow claims $(SETUP_CSV) --write-csv results/claims_paper_setup.csv --write-doc docs/reproduction.md
+	$(BIN)/gridflow sweep growth -o $(GROWTH_CSV)
+	$(BIN)/gridflow claims $(GROWTH_CSV) --write-csv results/claims_growth.csv --write-doc docs/reproduction.md
 
 test: $(STAMP) $(KERNELS) povray
 	$(PY) -m pytest

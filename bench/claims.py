@@ -385,12 +385,81 @@ def missing_data(df: pd.DataFrame, cid: str) -> str | None:
     return "; ".join(dict.fromkeys(lacking)) or None
 
 
+def _motion_curve(df, motion, model, quantity, param, noise=0.0) -> pd.Series:
+    """``_curve`` of one motion model's rows."""
+    return _curve(df[df.motion == motion].assign(motion="translation"), model, quantity,
+                  param, noise)
+
+
+def growth1(df) -> Result:
+    """Under growth the translation model's U_Z breaks down and the affine model's does
+    not: on the growth axis (noise-free, full model) the translation model's Q_rel(U_Z)
+    is above 0.1 (the breakdown level) and at least 10x the affine model's from some
+    growth rate on, to the largest; the affine model's stays below 0.01 (stable) at
+    every rate."""
+    tr = _motion_curve(df, "translation", "full", "Uz", "growth")
+    af = _motion_curve(df, "affine", "full", "Uz", "growth")
+    broken = (tr > BREAK) & (tr >= RATIO * af)
+    flags = broken.to_numpy()
+    first = next((i for i in range(len(flags)) if flags[i:].all()), None)
+    checks = [first is not None, bool((af < STABLE).all())]
+    where = f"from growth {abs(tr.index[first]):g}" if first is not None else "nowhere"
+    return Result(_verdict(checks),
+                  f"translation Q_rel(U_Z) vs growth: {_format_curve(tr, 7)}; broken {where}; "
+                  f"affine max {_fmt(af.max())}")
+
+
+def growth2(df) -> Result:
+    """Under rotation about the surface normal the translation model's U_Z breaks down
+    and the affine model's does not: the same two checks on the rotation axis."""
+    tr = _motion_curve(df, "translation", "full", "Uz", "rotation")
+    af = _motion_curve(df, "affine", "full", "Uz", "rotation")
+    broken = (tr > BREAK) & (tr >= RATIO * af)
+    flags = broken.to_numpy()
+    first = next((i for i in range(len(flags)) if flags[i:].all()), None)
+    checks = [first is not None, bool((af < STABLE).all())]
+    where = f"from rotation {abs(tr.index[first]):g}" if first is not None else "nowhere"
+    return Result(_verdict(checks),
+                  f"translation Q_rel(U_Z) vs rotation: {_format_curve(tr, 6)}; broken "
+                  f"{where}; affine max {_fmt(af.max())}")
+
+
+GROWTH_CLAIMS = [
+    ("G1", "Under growth the translation model's U_Z breaks down; the affine model's does "
+           "not", growth1),
+    ("G2", "Under rotation (about the normal) the translation model's U_Z breaks down; the "
+           "affine model's does not", growth2),
+]
+GROWTH_NEEDS = {"G1": "growth", "G2": "rotation"}
+
+
+def is_growth_sweep(df: pd.DataFrame) -> bool:
+    """A sweep of the affine motion model (``gridflow sweep growth``): its claims are
+    :data:`GROWTH_CLAIMS`, the paper's observations are about the translation model."""
+    return "motion" in df and (df.motion == "affine").any()
+
+
 def check_claims(df: pd.DataFrame) -> pd.DataFrame:
     """Evaluate every observation; returns a table ``id, observation, verdict, numbers``.
 
-    An observation whose data the sweep does not hold is ``not tested``, with the reason.
+    A sweep of the affine motion model is checked against :data:`GROWTH_CLAIMS`, any
+    other against the paper's observations.  An observation whose data the sweep does
+    not hold is ``not tested``, with the reason.
     """
     rows = []
+    if is_growth_sweep(df):
+        for cid, text, fn in GROWTH_CLAIMS:
+            p = GROWTH_NEEDS[cid]
+            have = {m: set(df[(df.param == p) & (df.motion == m) & (df.model == "full")
+                              & (df.quantity == "Uz") & (df.noise == 0)].value)
+                    for m in ("translation", "affine")}
+            ok = all(0 in v and len(v - {0}) >= MIN_VALUES for v in have.values())
+            r = fn(df) if ok else Result("not tested", f"the sweep lacks its data: full "
+                                         f"model, both motions, 0 and {MIN_VALUES} other "
+                                         f"noise-free values on the {p} axis")
+            rows.append({"id": cid, "observation": text, "verdict": r.verdict,
+                         "numbers": r.numbers})
+        return pd.DataFrame(rows)
     for cid, text, fn in CLAIMS:
         why = missing_data(df, cid)
         r = Result("not tested", f"the sweep lacks its data: {why}") if why else fn(df)
@@ -409,13 +478,13 @@ def claims_markdown(table: pd.DataFrame, source: str) -> str:
     return "\n".join(lines)
 
 
-def render_checks() -> str:
+def render_checks(claims=None) -> str:
     """What each observation's check measures and why, from the checks' docstrings."""
     import inspect
     import re
 
     lines = ["| # | observation | what is checked |", "|---|---|---|"]
-    for cid, text, fn in CLAIMS:
+    for cid, text, fn in (CLAIMS if claims is None else claims):
         doc = re.sub(r"\s+", " ", inspect.getdoc(fn) or "").replace("|", "\\|")
         lines.append(f"| {cid} | {text} | {doc} |")
     return "\n".join(lines)
@@ -436,6 +505,9 @@ def write_claims(table: pd.DataFrame, doc=None, csv=None, source: str = "",
         doc = Path(doc)
         text = doc.read_text() if doc.exists() else ""
         text = replace_block(text, tag, claims_markdown(table, source))
-        text = replace_block(text, "claims-checks", render_checks())
+        if set(table.id) <= {c for c, _, _ in GROWTH_CLAIMS}:
+            text = replace_block(text, "claims-checks-growth", render_checks(GROWTH_CLAIMS))
+        else:
+            text = replace_block(text, "claims-checks", render_checks())
         with atomic_write(doc, "w") as fh:
             fh.write(text)

@@ -36,7 +36,7 @@ MODEL_STYLE = {"bcc": dict(color="#d62728", marker="s", label="BCC"),
                "hf": dict(color="#1f77b4", marker="o", label="HF"),
                "full": dict(color="#2ca02c", marker="^", label="full")}
 PARAM_LABEL = {"a1": r"$a_1$", "a1x": r"$a_{1,x}$", "a2": r"$a_2$", "a2x": r"$a_{2,x}$",
-               "Uz": r"$U_Z$"}
+               "Uz": r"$U_Z$", "growth": "growth", "rotation": "rotation"}
 PARAMS = ("a1", "a1x", "a2", "a2x")
 
 
@@ -196,6 +196,40 @@ def fig_peers_depth(truth: np.ndarray, results: list[dict], title: str):
     return fig
 
 
+def fig_growth(df: pd.DataFrame, noise: float = 0.01, label: str = ""):
+    """The growth sweep in the style of Fig. 4: Q_rel(U_Z) and Q_rel(growth) against the
+    growth rate, and Q_rel(U_Z) and Q_rel(rotation) against the rotation rate; the three
+    brightness models with the affine motion model (solid) and with the paper's
+    translation model (dashed, U_Z only); top noise-free, bottom sigma_n = ``noise``."""
+    panels = (("growth", "Uz"), ("growth", "growth"), ("rotation", "Uz"),
+              ("rotation", "rotation"))
+    with plt.rc_context(STYLE):
+        fig, axes = plt.subplots(2, 4, figsize=(10, 4.8), constrained_layout=True)
+        for row, n in enumerate((0.0, noise)):
+            for col, (p, q) in enumerate(panels):
+                ax = axes[row, col]
+                for motion, ls in (("affine", "-"), ("translation", "--")):
+                    for model in ("bcc", "hf", "full"):
+                        d = df[(df.param == p) & (df.quantity == q) & (df.model == model)
+                               & (df.noise == n) & (df.motion == motion)]
+                        if d.empty:
+                            continue
+                        d = d.groupby("value", as_index=False)["q_rel"].mean()
+                        nz = d[d.value != 0]
+                        st = dict(MODEL_STYLE[model])
+                        st["label"] = f"{st['label']}, {motion}"
+                        ax.plot(nz.value.abs(), nz.q_rel, ms=3, lw=1, ls=ls, **st)
+                _log_axes(ax)
+                ax.set_xlabel(f"{p} rate per frame")
+                ax.set_ylabel(rf"$Q_{{rel}}$ of {PARAM_LABEL.get(q, q)}"
+                              + ("" if n == 0 else rf", $\sigma_n$={n}"))
+        axes[0, 0].legend(fontsize=5)
+        fig.suptitle("Growth: the affine motion model (solid) against the paper's "
+                     "translation model (dashed); top noise-free, bottom "
+                     rf"$\sigma_n = {noise}$" + (f" [{label}]" if label else ""))
+    return fig
+
+
 def sinusoid_fig2():
     """Fig. 2 of the paper from the generator: the first, reference and last central
     images of a sinusoid with ``a2 = -0.2, a2x = -0.002``."""
@@ -220,8 +254,12 @@ def draw_figures(out_dir, *, sweep: pd.DataFrame | None = None, fig2_too: bool =
     if sweep is not None:
         label = (", ".join(f"sweep {n}" for n in sweep["sweep"].unique())
                  if "sweep" in sweep else "")
-        written += save(fig3(sweep, label), out_dir, "fig3" + suffix)
-        written += save(fig4(sweep, label=label), out_dir, "fig4" + suffix)
+        if "motion" in sweep and (sweep.motion == "affine").any():
+            # a growth sweep: its own figure
+            written += save(fig_growth(sweep, label=label), out_dir, "fig_growth" + suffix)
+        else:
+            written += save(fig3(sweep, label), out_dir, "fig3" + suffix)
+            written += save(fig4(sweep, label=label), out_dir, "fig4" + suffix)
     if fig2_too:
         written += save(sinusoid_fig2(), out_dir, "fig2")
     return written

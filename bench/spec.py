@@ -27,14 +27,14 @@ from .setups import get_setup
 
 __all__ = ["SweepSpec", "Point", "SpecError", "shipped_specs", "resolve_spec", "SWEEPABLE"]
 
-_SWEEPABLE = {f.name for f in fields(SinusoidParams)} - {"grid", "spacing", "seed", "noise",
-                                                           "texture"}
+# (``spacing`` is swept as one number, the same along x and y)
+_SWEEPABLE = {f.name for f in fields(SinusoidParams)} - {"grid", "seed", "noise", "texture"}
 SWEEPABLE = tuple(sorted(_SWEEPABLE))
 # generator parameters that are integers (sizes); spec values for them must be integral
 _INTEGER = {f.name for f in fields(SinusoidParams) if f.type in ("int", int)}
 _SECTION_KEYS = {"sweep": {"name", "models", "motions", "noise", "seeds", "setup"},
                  "base": None,
-                 "estimator": None, "axis": {"param", "values"}}
+                 "estimator": None, "axis": {"param", "values", "with"}}
 
 
 class SpecError(GridflowError):
@@ -71,6 +71,10 @@ class SweepSpec:
     estimator : dict
         Estimator settings (``EstimatorSettings`` fields).
     axes : list of (str, list of float)
+        ``spacing`` is swept as one camera spacing for both axes.
+    fixed : dict of str to dict
+        Per swept parameter, generator parameters set on its axis only (``with`` in the
+        ``[[axis]]`` table), e.g. a growth rate under which a brightness change is swept.
     setup : str
         The named setup (:mod:`gridflow.bench.setups`) whose generator parameters,
         estimator settings and brightness reference the spec starts from; ``base`` and
@@ -86,6 +90,7 @@ class SweepSpec:
     axes: list[tuple[str, list[float]]] = field(default_factory=list)
     setup: str = "gridflow"
     motions: list[str] = field(default_factory=lambda: ["translation"])
+    fixed: dict = field(default_factory=dict)
 
     @classmethod
     def from_toml(cls, path) -> "SweepSpec":
@@ -120,13 +125,15 @@ class SweepSpec:
         axes_raw = raw.get("axis", [])
         if not isinstance(axes_raw, list) or not all(isinstance(a, dict) for a in axes_raw):
             raise SpecError(f"{source}: [[axis]] must be an array of tables")
-        axes = []
+        axes, fixed = [], {}
         for n, a in enumerate(axes_raw, 1):
             bad = set(a) - _SECTION_KEYS["axis"]
             if bad:
                 raise SpecError(f"{source}: [[axis]] number {n}: unknown key(s) {sorted(bad)}; "
-                                "expected 'param' and 'values'")
+                                "expected 'param', 'values' and optionally 'with'")
             axes.append((a.get("param"), a.get("values")))
+            if "with" in a:
+                fixed[a.get("param")] = a["with"]
         spec = cls(name=sw.get("name", "sweep"),
                    models=_list(sw.get("models", list(MODELS)), str, "[sweep] models", source),
                    noise=_list(sw.get("noise", [0.0]), float, "[sweep] noise", source),
@@ -134,7 +141,7 @@ class SweepSpec:
                    base=dict(raw.get("base", {})), estimator=dict(raw.get("estimator", {})),
                    axes=axes, setup=sw.get("setup", "gridflow"),
                    motions=_list(sw.get("motions", ["translation"]), str, "[sweep] motions",
-                                 source))
+                                 source), fixed=fixed)
         spec.validate(source)
         return spec
 
@@ -196,6 +203,18 @@ class SweepSpec:
             raise SpecError(f"{source}: [base] sets {overridden}, which an [[axis]] sweeps; "
                             "remove it from [base]")
         known = {f.name for f in fields(SinusoidParams)}
+        for param, extra in list(self.fixed.items()):
+            if not isinstance(extra, dict):
+                raise SpecError(f"{source}: axis {param!r}: 'with' must be a table of "
+                                f"generator parameters, got {extra!r}")
+            bad = sorted(set(extra) - known) + sorted(set(extra) & {"noise", "seed", param})
+            if bad:
+                raise SpecError(f"{source}: axis {param!r}: 'with' may not set {bad} (unknown, "
+                                "set by [sweep], or the swept parameter itself)")
+            if param not in swept:
+                raise SpecError(f"{source}: 'with' given for {param!r}, which no axis sweeps")
+            self.fixed[param] = {k: _value(k, v, f"axis {param!r} with", source)
+                                 for k, v in extra.items()}
         unknown = sorted(set(self.base) - known)
         if unknown:
             raise SpecError(f"{source}: [base]: unknown sinusoid parameter(s) {unknown}")
@@ -233,7 +252,12 @@ class SweepSpec:
     def params(self, point: Point, base: SinusoidParams | None = None) -> SinusoidParams:
         base = base or self.base_params()
         value = int(point.value) if point.param in _INTEGER else point.value
-        return base.replace(**{point.param: value, "noise": point.noise, "seed": point.seed})
+        if point.param == "spacing":
+            value = (value, value)
+        extra = {k: tuple(v) if isinstance(v, list) else v
+                 for k, v in self.fixed.get(point.param, {}).items()}
+        return base.replace(**{**extra, point.param: value, "noise": point.noise,
+                               "seed": point.seed})
 
     def as_dict(self) -> dict:
         """The spec as plain data (what the provenance sidecar and the resume key record)."""
@@ -241,7 +265,9 @@ class SweepSpec:
                 "motions": list(self.motions), "noise": list(self.noise),
                 "seeds": list(self.seeds), "base": dict(self.base),
                 "estimator": dict(self.estimator),
-                "axes": [{"param": p, "values": list(v)} for p, v in self.axes]}
+                "axes": [{"param": p, "values": list(v),
+                          **({"with": dict(self.fixed[p])} if self.fixed.get(p) else {})}
+                         for p, v in self.axes]}
 
 
 def _real(v) -> bool:

@@ -137,13 +137,25 @@ class CubeScene:
         blob = json.dumps(self.as_dict(), sort_keys=True) + _SDL_VERSION
         return hashlib.sha1(blob.encode()).hexdigest()[:12]
 
+    name = "cube"                              # the render folder's prefix
+
+    def sdl(self, k: int, i: int, j: int) -> str:
+        """POV-Ray scene text of frame ``k``, camera ``(i, j)`` (:func:`scene_sdl`)."""
+        return scene_sdl(self, k, i, j)
+
+    def truth(self) -> dict:
+        """The analytic ground truth (:func:`cube_truth`)."""
+        return cube_truth(self)
+
 
 _SDL_VERSION = "cube-sdl-1"
-_F = np.diag([1.0, -1.0, 1.0])
+# POV-Ray's frame is left-handed with Y up: model (camera) vectors map to it by flipping Y
+POV_FLIP = np.diag([1.0, -1.0, 1.0])
 
 
-def _pov_vec(v) -> list[float]:
-    return [float(x) for x in (_F @ np.asarray(v, float))]
+def pov_vec(v) -> list[float]:
+    """A model-frame vector in POV-Ray's frame."""
+    return [float(x) for x in (POV_FLIP @ np.asarray(v, float))]
 
 
 def scene_sdl(scene: CubeScene, k: int, i: int, j: int) -> str:
@@ -155,8 +167,8 @@ def scene_sdl(scene: CubeScene, k: int, i: int, j: int) -> str:
     import vapory as vp
 
     t = k - scene.ref_frame
-    R = _F @ scene.rotation() @ _F
-    c = _pov_vec(scene.center(t))
+    R = POV_FLIP @ scene.rotation() @ POV_FLIP
+    c = pov_vec(scene.center(t))
     h = scene.size / 2
     # POV-Ray applies `matrix` to row vectors: p' = p M + t, so M is R transposed.
     m = [*R.T.ravel().tolist(), *c]
@@ -169,17 +181,17 @@ def scene_sdl(scene: CubeScene, k: int, i: int, j: int) -> str:
     # a shifted principal point is an off-axis ray through the image centre: the ray of
     # image position (x, y) is (dx + x, dy + y, f) in the model frame
     dx, dy = scene.principal_shift(i, j)
-    camera = vp.Camera("perspective", "location", _pov_vec(cam),
+    camera = vp.Camera("perspective", "location", pov_vec(cam),
                        "right", [scene.width, 0, 0], "up", [0, scene.height, 0],
-                       "direction", _pov_vec([dx, dy, scene.f]))
+                       "direction", pov_vec([dx, dy, scene.f]))
     objects = [cube, vp.Background("rgb", 0)]
     if scene.spotlight:
-        objects.append(vp.LightSource(_pov_vec(scene.light(k)), "rgb", scene.spot_power,
+        objects.append(vp.LightSource(pov_vec(scene.light(k)), "rgb", scene.spot_power,
                                       "spotlight", "point_at", c,
                                       "radius", scene.spot_radius_deg,
                                       "falloff", scene.spot_falloff_deg))
     else:
-        objects.append(vp.LightSource(_pov_vec(scene.center(t) + [0, -100, -400]), "rgb",
+        objects.append(vp.LightSource(pov_vec(scene.center(t) + [0, -100, -400]), "rgb",
                                       scene.spot_power * 0.5))
     sdl = vp.Scene(camera, objects=objects,
                    global_settings=["assumed_gamma 1.0", "ambient_light rgb 1"])

@@ -25,7 +25,7 @@ import numpy as np
 
 from gridflow.io import atomic_write
 
-from .cube import CubeScene, cube_truth, scene_sdl
+from .cube import CubeScene, cube_truth
 
 __all__ = ["render_cube", "render_cube_lightfield", "povray_binary", "PovrayMissing",
            "RenderError", "IMAGE_PATTERN"]
@@ -56,7 +56,7 @@ def _render_one(exe: str, scene: CubeScene, k: int, i: int, j: int, out: Path,
     t0 = time.perf_counter()
     base = f"r{k}_{i}_{j}_{os.getpid()}"
     pov = Path(tmpdir) / f"{base}.pov"
-    pov.write_text(scene_sdl(scene, k, i, j))
+    pov.write_text(scene.sdl(k, i, j))
     tmp_png = out.parent / f".{out.name}.{os.getpid()}.tmp.png"
     cmd = [exe, f"+I{pov}", f"+O{tmp_png}", f"+W{scene.width}", f"+H{scene.height}",
            "-D", "-V", "-GA", "+FN16", "Grayscale_Output=on", "File_Gamma=1.0", "-A", "+Q9",
@@ -70,9 +70,12 @@ def _render_one(exe: str, scene: CubeScene, k: int, i: int, j: int, out: Path,
     return time.perf_counter() - t0
 
 
-def render_cube(scene: CubeScene, root, *, workers: int | None = None,
-                progress: bool = True) -> Path:
+def render_cube(scene, root, *, workers: int | None = None, progress: bool = True) -> Path:
     """Render ``scene`` (cached) and return its camera-grid folder.
+
+    ``scene`` is a :class:`CubeScene` or any scene of the same interface
+    (:class:`scenes.leaf.LeafScene`): ``name``, ``key()``, ``sdl(k, i, j)``, ``truth()``,
+    ``as_dict()``, the image size, grid, spacing, frames and focal length ``f``.
 
     Parameters
     ----------
@@ -89,7 +92,7 @@ def render_cube(scene: CubeScene, root, *, workers: int | None = None,
     PovrayMissing
         If ``povray`` is not installed.
     """
-    folder = Path(root).resolve() / f"cube-{scene.key()}"
+    folder = Path(root).resolve() / f"{scene.name}-{scene.key()}"
     manifest = folder / "grid.json"
     if manifest.exists():
         return folder
@@ -160,14 +163,14 @@ def _render_all(exe: str, scene: CubeScene, folder: Path, manifest: Path, worker
     with tempfile.TemporaryDirectory(prefix=".pov-", dir=folder) as tmpdir, \
             ThreadPoolExecutor(max_workers=workers or os.cpu_count() or 1) as ex, \
             tqdm(total=len(jobs), initial=len(jobs) - len(todo), disable=not progress,
-                 desc="render cube", unit="img") as bar:
+                 desc=f"render {scene.name}", unit="img") as bar:
         futs = [ex.submit(_render_one, exe, scene, k, i, j, out, tmpdir)
                 for k, i, j, out in todo]
         for fut in as_completed(futs):
             fut.result()
             bar.update()
     seconds = time.perf_counter() - t0
-    truth = cube_truth(scene)
+    truth = scene.truth()
     (folder / "truth").mkdir(exist_ok=True)
     names = {}
     for name, arr in truth.items():

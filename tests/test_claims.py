@@ -297,3 +297,36 @@ def test_breakdown_location_boundaries():
                 return 100.0 if abs(v) >= where else 1e-4 + 1.2 * abs(v)
             return val
         assert _verdicts(_sweep(change))["9"] == verdict, where
+
+
+# --- the growth sweep's claims ---------------------------------------------------------------
+
+def _growth_sweep(tr_uz, af_uz):
+    """Rows of a growth sweep: the full model's U_Z error under each motion model, as
+    functions of the rate, on the growth and the rotation axes."""
+    rows = []
+    for p in ("growth", "rotation"):
+        for v in (0.0, 1e-4, 1e-3, 3e-3, 1e-2):
+            for motion, fn in (("translation", tr_uz), ("affine", af_uz)):
+                rows.append({"sweep": "growth", "param": p, "value": v, "noise": 0.0,
+                             "seed": 0, "model": "full", "motion": motion, "quantity": "Uz",
+                             "q": fn(p, v), "q_rel": fn(p, v), "q_abs": 0.0})
+    return pd.DataFrame(rows)
+
+
+@pytest.mark.parametrize("k, tr_verdict", [(BELOW, "partly"), (ABOVE, "holds")])
+def test_growth_breakdown_level(k, tr_verdict):
+    """G1 and G2 read "breaks down" as the paper's observations do: above 0.1 (and 10x
+    the affine model's) from some rate on; here at 0.1 x (1 -/+ 1 %) from 1e-3 on."""
+    df = _growth_sweep(lambda p, v: 0.1 * k if v >= 1e-3 else 1e-4, lambda p, v: 1e-4)
+    got = dict(zip(check_claims(df).id, check_claims(df).verdict))
+    assert got == {"G1": tr_verdict, "G2": tr_verdict}
+
+
+@pytest.mark.parametrize("k, verdict", [(BELOW, "holds"), (ABOVE, "partly")])
+def test_growth_stability_level(k, verdict):
+    """The affine model's U_Z "does not break down": below 0.01 at every rate."""
+    df = _growth_sweep(lambda p, v: 1.0 if v >= 1e-3 else 1e-4,
+                       lambda p, v: 0.01 * k if v == 1e-2 else 1e-4)
+    got = dict(zip(check_claims(df).id, check_claims(df).verdict))
+    assert got == {"G1": verdict, "G2": verdict}

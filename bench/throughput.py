@@ -88,14 +88,17 @@ def _max_rel_diff(a, b, truth, mask) -> float:
                for q in ("Z", "Uz", "Zx"))
 
 
-def inprocess(size: int, models, repeat: int) -> list[dict]:
+def inprocess(size: int, models, repeat: int, affine=("full",)) -> list[dict]:
+    """``models`` with the translation model, and ``affine`` with the affine motion
+    model (on the same volume; its answers are compared like the others')."""
     sv = _volume(size)
     # load (or compile) the numba kernels outside the timings
     estimate(sv.volume[..., :160, :160], sv.focal_length, sv.camera_spacing, model="full")
     rows = []
-    for model in models:
+    cases = [(m, "translation") for m in models] + [(m, "affine") for m in affine]
+    for model, motion in cases:
         run = lambda method: estimate(sv.volume, sv.focal_length, sv.camera_spacing,  # noqa: E731
-                                      model=model, method=method)
+                                      model=model, method=method, motion=motion)
         fast, base = [], []
         for _ in range(repeat):
             fast.append(_timed(lambda: run("fast"), 1))
@@ -103,7 +106,8 @@ def inprocess(size: int, models, repeat: int) -> list[dict]:
         fw, fc, ef = min(fast, key=lambda r: r[0])
         bw, bc, eb = min(base, key=lambda r: r[0])
         n_int = int(eb.interior.sum())
-        rows.append(dict(model=model, size=size, base_wall=bw, base_cpu=bc, fast_wall=fw,
+        rows.append(dict(model=model if motion == "translation" else f"{model} (affine)",
+                         size=size, base_wall=bw, base_cpu=bc, fast_wall=fw,
                          fast_cpu=fc, wall_ratio=bw / fw, cpu_ratio=bc / fc,
                          round_ratio=float(np.median([b[0] / f[0] for f, b in zip(fast, base)])),
                          fast_interior_kpx_s=n_int / fw / 1e3,
@@ -182,6 +186,8 @@ def main(argv=None) -> int:
     ap.add_argument("--sections", nargs="+", choices=SECTIONS, default=list(SECTIONS))
     ap.add_argument("--size", type=int, default=512, help="in-process image size")
     ap.add_argument("--models", nargs="+", choices=MODELS, default=list(MODELS))
+    ap.add_argument("--affine", nargs="*", choices=MODELS, default=["full"],
+                    help="models also run with the affine motion model (default full)")
     ap.add_argument("--repeat", type=int, default=3,
                     help="rounds (in-process: one fast and one baseline call each) or CLI "
                          "repeats; the best is kept")
@@ -204,7 +210,7 @@ def main(argv=None) -> int:
         print("| model | baseline wall s | baseline CPU s | fast wall s | fast CPU s | "
               "wall ratio | CPU ratio | median round | fast interior kpx/s | max rel diff |")
         print("|---|---|---|---|---|---|---|---|---|---|")
-        for r in inprocess(a.size, a.models, a.repeat):
+        for r in inprocess(a.size, a.models, a.repeat, a.affine):
             print(f"| {r['model']} | {r['base_wall']:.2f} | {r['base_cpu']:.2f} | "
                   f"{r['fast_wall']:.3f} | {r['fast_cpu']:.3f} | **{r['wall_ratio']:.1f}** | "
                   f"{r['cpu_ratio']:.1f} | {r['round_ratio']:.1f} | "

@@ -35,7 +35,8 @@ def _combine(x1, w1, x2, w2):
 def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: np.ndarray,
                 focal_length: float, spacing: tuple[float, float],
                 slant_correction: bool = True,
-                combine: str = "inverse_variance") -> dict[str, np.ndarray]:
+                combine: str = "inverse_variance",
+                residual: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Parameters in world units from the parameter vectors (Sec. 3, steps 4-5).
 
     Parameters
@@ -56,6 +57,9 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
     combine : {"inverse_variance", "mean"}
         Weights of the two estimates of ``v, z_x, z_y, u_z``: inverse variances (module
         docstring) or equal.
+    residual : ndarray, shape (N,), optional
+        The data's noise variance in units of J (motion models that give error
+        estimates use it: the affine one).
 
     Returns
     -------
@@ -90,7 +94,7 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
     out = {"Z": Z, "Zx": Zx, "Zy": Zy, "disparity": disparity}
     plane = dict(v=v, zx=zx, zy=zy, Z=Z, Zx=Zx, Zy=Zy)
     out.update(_MOTION[model.motion](P, g, model, plane, x0, y0, f, spacing,
-                                     slant_correction, combine2))
+                                     slant_correction, combine2, residual))
     with np.errstate(divide="ignore", invalid="ignore"):
         out.update(_brightness(ct, model, Z, Zx, Zy, x0, y0, f))
     return out
@@ -116,7 +120,8 @@ def _from_ds_columns(P, g, model: Model, spacing, combine2):
     return v, zx, zy
 
 
-def _translation(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, combine2):
+def _translation(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, combine2,
+                 residual=None):
     """The paper's motion model, from the dt column: the divergence ``u_z`` twice (rows 3
     and 6, combined), then the image translation ``u_x, u_y``; in world units by Eq. 16
     inverted: ``U_x = Z u_x / f``, ``U_y = Z u_y / f``, ``U_z = -Z u_z``."""
@@ -196,67 +201,102 @@ def affine_observations(theta, Z, Zx, Zy, x0, y0, f):
     return np.stack([wx, wy, Wxx, Wxy, Wyx, Wyy, vt, zxt, zyt])
 
 
-def _affine(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, combine2):
+def _surface_rates(theta, Zx, Zy):
+    """Growth, rotation about the normal and the slopes' rates of the motion ``theta =
+    (U, g1, g2)`` (shape (9, N)) on the plane of slopes ``Zx, Zy`` (linear in theta)."""
+    N = Zx.size
+    g1, g2 = theta[3:6], theta[6:9]
+    # the surface's tangents e1 = (1, 0, Z_x), e2 = (0, 1, Z_y), unit normal n
+    e1 = np.stack([np.ones(N), np.zeros(N), Zx])
+    e2 = np.stack([np.zeros(N), np.ones(N), Zy])
+    n = np.stack([-Zx, -Zy, np.ones(N)])
+    n = n / np.sqrt((n * n).sum(0))
+    # growth: tr of the surface gradient sum_i g_i (e_i* . d): with the Gram matrix m of
+    # (e1, e2), the dual vectors are e_i* = sum_j (m^-1)_ij e_j
+    m11, m12, m22 = (e1 * e1).sum(0), (e1 * e2).sum(0), (e2 * e2).sum(0)
+    det = m11 * m22 - m12 * m12
+    inv = ((m22 / det, -m12 / det), (-m12 / det, m11 / det))
+    gs, e = (g1, g2), (e1, e2)
+    growth = sum(inv[a][b] * (e[b] * gs[a]).sum(0) for a in range(2) for b in range(2))
+    # rotation about n: (t2 . L t1 - t1 . L t2) / 2 for a right-handed (t1, t2, n), with
+    # L d = sum_i g_i (e_i* . d) the surface gradient of V
+    t1 = e1 / np.sqrt(m11)
+    t2 = np.cross(n, t1, axis=0)
+
+    def L(d):
+        dual = [sum(inv[a][b] * (e[b] * d).sum(0) for b in range(2)) for a in range(2)]
+        return g1 * dual[0] + g2 * dual[1]
+
+    rotation = 0.5 * ((t2 * L(t1)).sum(0) - (t1 * L(t2)).sum(0))
+    dN = np.cross(g1, e2, axis=0) + np.cross(e1, g2, axis=0)
+    return {"growth": growth, "rotation": rotation, "Zx_t": -dN[0] - Zx * dN[2],
+            "Zy_t": -dN[1] - Zy * dN[2]}
+
+
+_AFFINE_DT_ROWS = ("Ix", "Iy", "IxDx", "IxDy", "IyDx", "IyDy")
+_AFFINE_RATE_ROWS = (("v_t", "tIx", "tIy"), ("zx_t", "tIxDx", "tIyDx"),
+                     ("zy_t", "tIxDy", "tIyDy"))
+
+
+def _affine(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, combine2,
+            residual=None):
     """Affine motion: the flow and its gradient from the dt column, the rates of the
     disparity and the projected slopes from the ``t I_x``-rows of the ds columns (each
     twice on a 2-D grid, combined), and the 9 x 9 linear system of
     :func:`affine_observations` solved per pixel for ``U, g1, g2``; then the growth (the
-    surface divergence of V), the rotation about the normal and the slopes' rates."""
+    surface divergence of V), the rotation about the normal and the slopes' rates.
+
+    ``residual`` (shape (N,)): the data's noise variance ``s^2`` in units of J (the model
+    error over the window's effective number of samples).  With it, first-order error
+    estimates ``Uz_err``, ``growth_err``, ``rotation_err`` (standard deviations): the
+    observations' variances ``s^2 |p_c|^2 g_r`` (:mod:`estimator.nullspace`), their
+    correlations left out, carried through the solve."""
     i = model.index
     dsx, dsy = spacing
     ct, cx = P[..., -1], P[..., 0]
     Z, Zx, Zy = plane["Z"], plane["Zx"], plane["Zy"]
-    rates = {q: cx[:, i(r)] / dsx for q, r in (("v_t", "tIx"), ("zx_t", "tIxDx"),
-                                               ("zy_t", "tIxDy"))}
-    if model.grid_dims == 2:
-        norm2 = np.einsum("nrc,nrc->nc", P, P)
-        cy = P[..., 1]
-        wx, wy = dsx ** 2 / norm2[:, 0], dsy ** 2 / norm2[:, 1]
-        for q, rx, ry in (("v_t", "tIx", "tIy"), ("zx_t", "tIxDx", "tIyDx"),
-                          ("zy_t", "tIxDy", "tIyDy")):
-            rates[q] = combine2(rates[q], wx / g[:, i(rx)], cy[:, i(ry)] / dsy,
-                                wy / g[:, i(ry)])
-    obs = np.stack([ct[:, i("Ix")], ct[:, i("Iy")], ct[:, i("IxDx")], ct[:, i("IxDy")],
-                    ct[:, i("IyDx")], ct[:, i("IyDy")], rates["v_t"], rates["zx_t"],
-                    rates["zy_t"]])
+    norm2 = np.einsum("nrc,nrc->nc", P, P)            # |p_c|^2
+    rates, var = {}, {}
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for q, rx, ry in _AFFINE_RATE_ROWS:
+            rates[q] = cx[:, i(rx)] / dsx
+            var[q] = norm2[:, 0] * g[:, i(rx)] / dsx ** 2
+            if model.grid_dims == 2:
+                vy = norm2[:, 1] * g[:, i(ry)] / dsy ** 2
+                rates[q] = combine2(rates[q], 1.0 / var[q], P[:, i(ry), 1] / dsy, 1.0 / vy)
+                # the combination's own variance: 1 / (1/vx + 1/vy) for inverse-variance
+                # weights, (vx + vy) / 4 for the mean; both are combine2 of the variances
+                # with those weights, halved
+                var[q] = combine2(var[q], 1.0 / var[q], vy, 1.0 / vy) / 2.0
+    obs = np.stack([ct[:, i(r)] for r in _AFFINE_DT_ROWS]
+                   + [rates[q] for q, _, _ in _AFFINE_RATE_ROWS])
     N = Z.size
     ok = np.isfinite(obs).all(0) & np.isfinite(Z) & np.isfinite(Zx) & np.isfinite(Zy)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         # the system's columns: the observations of each unit motion
         M = np.empty((N, 9, 9))
+        units = []
         for j in range(9):
             unit = np.zeros((9, N))
             unit[j] = 1.0
+            units.append(unit)
             M[:, :, j] = affine_observations(unit, Z, Zx, Zy, x0, y0, f).T
         M[~ok] = np.eye(9)
         theta = np.linalg.solve(M, np.where(ok, obs, 0.0).T[..., None])[..., 0].T
         theta[:, ~ok] = np.nan
-        U, g1, g2 = theta[0:3], theta[3:6], theta[6:9]
-        # the surface's tangents e1 = (1, 0, Z_x), e2 = (0, 1, Z_y), unit normal n
-        e1 = np.stack([np.ones(N), np.zeros(N), Zx])
-        e2 = np.stack([np.zeros(N), np.ones(N), Zy])
-        n = np.stack([-Zx, -Zy, np.ones(N)])
-        n = n / np.sqrt((n * n).sum(0))
-        # growth: tr of the surface gradient sum_i g_i (e_i* . d): with the Gram matrix
-        # m of (e1, e2), the dual vectors are e_i* = sum_j (m^-1)_ij e_j
-        m11, m12, m22 = (e1 * e1).sum(0), (e1 * e2).sum(0), (e2 * e2).sum(0)
-        det = m11 * m22 - m12 * m12
-        inv = ((m22 / det, -m12 / det), (-m12 / det, m11 / det))
-        gs, e = (g1, g2), (e1, e2)
-        growth = sum(inv[a][b] * (e[b] * gs[a]).sum(0) for a in range(2) for b in range(2))
-        # rotation about n: (t2 . L t1 - t1 . L t2) / 2 for a right-handed (t1, t2, n),
-        # with L d = sum_i g_i (e_i* . d) the surface gradient of V
-        t1 = e1 / np.sqrt(m11)
-        t2 = np.cross(n, t1, axis=0)
-
-        def L(d):
-            dual = [sum(inv[a][b] * (e[b] * d).sum(0) for b in range(2)) for a in range(2)]
-            return g1 * dual[0] + g2 * dual[1]
-
-        rotation = 0.5 * ((t2 * L(t1)).sum(0) - (t1 * L(t2)).sum(0))
-        dN = np.cross(g1, e2, axis=0) + np.cross(e1, g2, axis=0)
-    return {"Ux": U[0], "Uy": U[1], "Uz": U[2], "growth": growth, "rotation": rotation,
-            "Zx_t": -dN[0] - Zx * dN[2], "Zy_t": -dN[1] - Zy * dN[2]}
+        out = {"Ux": theta[0], "Uy": theta[1], "Uz": theta[2]}
+        out.update(_surface_rates(theta, Zx, Zy))
+        if residual is not None:
+            v = np.stack([norm2[:, -1] * g[:, i(r)] for r in _AFFINE_DT_ROWS]
+                         + [var[q] for q, _, _ in _AFFINE_RATE_ROWS]).T * residual[:, None]
+            Minv = np.linalg.inv(M)
+            cov = np.einsum("nij,nj,nkj->nik", Minv, np.where(ok[:, None], v, np.nan), Minv)
+            out["Uz_err"] = np.sqrt(cov[:, 2, 2])
+            for q in ("growth", "rotation"):
+                # the rate is linear in theta: its coefficients, from the unit motions
+                coef = np.stack([_surface_rates(u, Zx, Zy)[q] for u in units], axis=1)
+                out[q + "_err"] = np.sqrt(np.einsum("ni,nij,nj->n", coef, cov, coef))
+    return out
 
 
 # motion model -> its disentangling: world velocities (and, for affine motion, growth,

@@ -231,6 +231,29 @@ def _plan(volume, focal_length, camera_spacing, principal_point, s: EstimatorSet
                 grid_dims=2 if Sy > 1 else 1, static=static)
 
 
+def _effective_samples(w: np.ndarray, spatial: FilterPair, frames: int,
+                       time: FilterPair | None) -> float:
+    """The number of independent samples a window's noise averages over, for the error
+    estimates: ``1 / Var(sum of the weighted samples)`` per unit sample variance.
+
+    The samples are prefiltered (the 5-tap pairs in x and y, and in time), so their noise
+    is correlated over the prefilter's reach: the variance of a weighted sum is
+    ``sum_ij w_i w_j R(i - j)`` with ``R`` the prefilter's normalised autocorrelation, per
+    axis (Gaussian weights ``w`` in x and y, ``frames`` uniform weights in time)."""
+    def variance(weights, pair):
+        p = pair.prefilter
+        R = np.correlate(p, p, mode="full") / np.dot(p, p)
+        # full convolution, then the centre: ``mode="same"`` returns the longer of the
+        # two lengths, which is R's when the window is shorter than the autocorrelation
+        c = np.convolve(weights, R, mode="full")
+        k = (len(R) - 1) // 2
+        return float(weights @ c[k:k + len(weights)])
+
+    vx = variance(w, spatial)
+    vt = variance(np.full(frames, 1.0 / frames), time) if time is not None else 1.0
+    return 1.0 / (vx * vx * vt)
+
+
 def estimate(volume: np.ndarray, focal_length: float, camera_spacing, *, model: str = "full",
              principal_point=None, **settings) -> Estimate:
     """Estimate depth, slopes, 3-D motion and brightness change at the reference camera.
@@ -313,6 +336,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     cols = np.arange(halo, W - halo)
     step = max(1, _DISENTANGLE_PIXELS // cols.size)          # rows per call
     inv = 1.0 / plan.scale
+    n_eff = _effective_samples(tplan.kernels[0], plan.spatial, len(plan.frames), plan.time)
     for r0 in range(halo, H - halo, band):
         r1 = min(r0 + band, H - halo)
         signals = backend.signals(vol, splan, slice(r0 - halo, r1 + halo))
@@ -328,7 +352,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
                 px = slice(a * cols.size, b * cols.size)
                 res = disentangle(P[px], g[px], mdl[m], x0[px], y0[px], plan.focal_length,
                                   plan.spacing, slant_correction=s.slant_correction,
-                                  combine=s.combine)
+                                  combine=s.combine, residual=err[px] / n_eff)
                 # an eigenvalue of J: undo the internal rescaling (J scales with its
                 # square).  For |V| beyond ~1e154 the true value is not representable:
                 # it becomes inf.

@@ -63,7 +63,8 @@ _MOTION_ROWS = {
 }
 _MOTION_OUTPUTS = {
     "translation": ("Ux", "Uy", "Uz"),
-    "affine": ("Ux", "Uy", "Uz", "growth", "rotation", "Zx_t", "Zy_t"),
+    "affine": ("Ux", "Uy", "Uz", "growth", "rotation", "Zx_t", "Zy_t", "Uz_err",
+               "growth_err", "rotation_err"),
 }
 # rows a 1-D grid (ds_y = 0) drops: their ds_y part is gone, and under translation their
 # dt part (d(dy/dt)/dx) is zero; under affine motion it is a free flow gradient, kept

@@ -201,27 +201,34 @@ def affine_observations(theta, Z, Zx, Zy, x0, y0, f):
     return np.stack([wx, wy, Wxx, Wxy, Wyx, Wyy, vt, zxt, zyt])
 
 
-def _surface_rates(theta, Zx, Zy):
-    """Growth, rotation about the normal and the slopes' rates of the motion ``theta =
-    (U, g1, g2)`` (shape (9, N)) on the plane of slopes ``Zx, Zy`` (linear in theta)."""
+def _surface_frame(Zx, Zy):
+    """The plane's tangents ``e1 = (1, 0, Z_x)``, ``e2 = (0, 1, Z_y)`` (each shape (3, N)),
+    the inverse of their Gram matrix ``m`` (nested pairs of (N,) arrays; the dual vectors
+    are ``e_i* = sum_j (m^-1)_ij e_j``) and a right-handed orthonormal ``(t1, t2, n)``."""
     N = Zx.size
-    g1, g2 = theta[3:6], theta[6:9]
-    # the surface's tangents e1 = (1, 0, Z_x), e2 = (0, 1, Z_y), unit normal n
     e1 = np.stack([np.ones(N), np.zeros(N), Zx])
     e2 = np.stack([np.zeros(N), np.ones(N), Zy])
     n = np.stack([-Zx, -Zy, np.ones(N)])
     n = n / np.sqrt((n * n).sum(0))
-    # growth: tr of the surface gradient sum_i g_i (e_i* . d): with the Gram matrix m of
-    # (e1, e2), the dual vectors are e_i* = sum_j (m^-1)_ij e_j
     m11, m12, m22 = (e1 * e1).sum(0), (e1 * e2).sum(0), (e2 * e2).sum(0)
     det = m11 * m22 - m12 * m12
     inv = ((m22 / det, -m12 / det), (-m12 / det, m11 / det))
-    gs, e = (g1, g2), (e1, e2)
+    t1 = e1 / np.sqrt(m11)
+    t2 = np.cross(n, t1, axis=0)
+    return (e1, e2), inv, (t1, t2)
+
+
+def _surface_rates(theta, Zx, Zy):
+    """Growth, rotation about the normal and the slopes' rates of the motion ``theta =
+    (U, g1, g2)`` (shape (9, N)) on the plane of slopes ``Zx, Zy`` (linear in theta)."""
+    g1, g2 = theta[3:6], theta[6:9]
+    e, inv, (t1, t2) = _surface_frame(Zx, Zy)
+    e1, e2 = e
+    # growth: tr of the surface gradient sum_i g_i (e_i* . d)
+    gs = (g1, g2)
     growth = sum(inv[a][b] * (e[b] * gs[a]).sum(0) for a in range(2) for b in range(2))
     # rotation about n: (t2 . L t1 - t1 . L t2) / 2 for a right-handed (t1, t2, n), with
     # L d = sum_i g_i (e_i* . d) the surface gradient of V
-    t1 = e1 / np.sqrt(m11)
-    t2 = np.cross(n, t1, axis=0)
 
     def L(d):
         dual = [sum(inv[a][b] * (e[b] * d).sum(0) for b in range(2)) for a in range(2)]
@@ -231,6 +238,19 @@ def _surface_rates(theta, Zx, Zy):
     dN = np.cross(g1, e2, axis=0) + np.cross(e1, g2, axis=0)
     return {"growth": growth, "rotation": rotation, "Zx_t": -dN[0] - Zx * dN[2],
             "Zy_t": -dN[1] - Zy * dN[2]}
+
+
+def _rate_coefficients(Zx, Zy) -> dict:
+    """The coefficients of growth and rotation in ``theta`` (each shape (N, 9); zero on
+    ``U``): :func:`_surface_rates` is linear, ``growth = sum_i e_i* . g_i`` and
+    ``rotation = sum_i ((e_i* . t1) t2 - (e_i* . t2) t1) . g_i / 2``."""
+    e, inv, (t1, t2) = _surface_frame(Zx, Zy)
+    dual = [inv[a][0] * e[0] + inv[a][1] * e[1] for a in range(2)]
+    zero = np.zeros((3, Zx.size))
+    growth = np.concatenate([zero] + dual)
+    rotation = np.concatenate(
+        [zero] + [0.5 * ((d * t1).sum(0) * t2 - (d * t2).sum(0) * t1) for d in dual])
+    return {"growth": growth.T, "rotation": rotation.T}
 
 
 _AFFINE_DT_ROWS = ("Ix", "Iy", "IxDx", "IxDy", "IyDx", "IyDy")
@@ -275,11 +295,9 @@ def _affine(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, com
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         # the system's columns: the observations of each unit motion
         M = np.empty((N, 9, 9))
-        units = []
         for j in range(9):
             unit = np.zeros((9, N))
             unit[j] = 1.0
-            units.append(unit)
             M[:, :, j] = affine_observations(unit, Z, Zx, Zy, x0, y0, f).T
         M[~ok] = np.eye(9)
         theta = np.linalg.solve(M, np.where(ok, obs, 0.0).T[..., None])[..., 0].T
@@ -289,13 +307,16 @@ def _affine(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, com
         if residual is not None:
             v = np.stack([norm2[:, -1] * g[:, i(r)] for r in _AFFINE_DT_ROWS]
                          + [var[q] for q, _, _ in _AFFINE_RATE_ROWS]).T * residual[:, None]
-            Minv = np.linalg.inv(M)
-            cov = np.einsum("nij,nj,nkj->nik", Minv, np.where(ok[:, None], v, np.nan), Minv)
-            out["Uz_err"] = np.sqrt(cov[:, 2, 2])
-            for q in ("growth", "rotation"):
-                # the rate is linear in theta: its coefficients, from the unit motions
-                coef = np.stack([_surface_rates(u, Zx, Zy)[q] for u in units], axis=1)
-                out[q + "_err"] = np.sqrt(np.einsum("ni,nij,nj->n", coef, cov, coef))
+            # a quantity c . theta = c . M^-1 o has variance sum_j (M^-T c)_j^2 v_j: one
+            # solve with M^T for the three quantities, no inverse
+            coef = _rate_coefficients(Zx, Zy)
+            C = np.stack([np.broadcast_to(np.eye(9)[2], (N, 9)), coef["growth"],
+                          coef["rotation"]], axis=2)
+            MT = M.transpose(0, 2, 1)
+            A = np.linalg.solve(MT, np.where(ok[:, None, None], C, 0.0))
+            sd = np.sqrt(np.einsum("njq,nj->qn", A * A, v))
+            sd[:, ~ok] = np.nan
+            out["Uz_err"], out["growth_err"], out["rotation_err"] = sd
     return out
 
 

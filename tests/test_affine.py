@@ -250,3 +250,19 @@ def test_error_estimates_bound_the_scatter(grid):
         scatter = 1.4826 * np.median(np.abs(err - np.median(err)))
         ratio = np.median(e[q + "_err"][e.interior]) / scatter
         assert 1.0 < ratio < upper, (q, ratio, upper)
+
+
+def test_rate_coefficients_are_the_rates_linear_map():
+    """The error estimates carry the covariance through the growth's and rotation's
+    coefficients in theta; they must be the linear map :func:`_surface_rates` applies
+    (checked on random motions and slopes, to rounding)."""
+    from gridflow.estimator.disentangle import _rate_coefficients, _surface_rates
+
+    rng = np.random.default_rng(5)
+    Zx, Zy = rng.normal(0, 0.8, 50), rng.normal(0, 0.8, 50)
+    theta = rng.normal(size=(9, 50))
+    rates = _surface_rates(theta, Zx, Zy)
+    coef = _rate_coefficients(Zx, Zy)
+    for q in ("growth", "rotation"):
+        np.testing.assert_allclose(np.einsum("nj,jn->n", coef[q], theta), rates[q],
+                                   rtol=1e-12, atol=1e-12)

@@ -216,9 +216,13 @@ def load_hci(folder, views: int | None = None) -> GridVolume:
         # the benchmark states each scene's disparity range (an input, not ground truth:
         # methods may use it to bound their search)
         m = params.get("meta", {})
-        if isinstance(m.get("disp_min"), float | int) and isinstance(m.get("disp_max"),
-                                                                     float | int):
-            meta["hci"]["disp_range"] = [float(m["disp_min"]), float(m["disp_max"])]
+        if "disp_min" in m or "disp_max" in m:
+            lo, hi = m.get("disp_min"), m.get("disp_max")
+            if not (isinstance(lo, float | int) and isinstance(hi, float | int)
+                    and np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
+                raise HCIError(f"{cfg}: [meta] disp_min, disp_max: expected two finite "
+                               f"numbers with disp_min <= disp_max, got {lo!r}, {hi!r}")
+            meta["hci"]["disp_range"] = [float(lo), float(hi)]
     truth = {}
     for name, key in (("gt_disp_lowres.pfm", "disparity"), ("gt_depth_lowres.pfm", "depth")):
         if (folder / name).is_file():

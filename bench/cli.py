@@ -51,27 +51,27 @@ def _add_estimator_args(p: argparse.ArgumentParser) -> None:
                         "one frame), a comma-separated list, or 'all'; several models share "
                         "one structure tensor, and each is written to OUTPUT with _MODEL "
                         "before the suffix")
-    g.add_argument("--motion", choices=MOTIONS, default=DEFAULTS["motion"],
+    g.add_argument("--motion", choices=MOTIONS, default=None,
                    help="motion model: the paper's translating patch (default), or "
                         "'affine': a velocity varying across the surface, which adds the "
                         "maps growth (relative area rate), rotation (about the normal) and "
                         "the slopes' rates Zx_t, Zy_t; needs 5 frames (docs/model.md)")
     g.add_argument("--sigma", type=float, default=None,
-                   help=f"Gaussian sigma, px (default {DEFAULTS['sigma']:g}; with --shears "
-                        f"{occl[0]:g}, or {lines[0]:g} with --select lines or occlusion)")
+                   help=f"Gaussian sigma, px (default {DEFAULTS['sigma']:g}; a refocused "
+                        f"light field: {lines[0]:g}, or {occl[0]:g} with --select coarse)")
     g.add_argument("--window", type=int, default=None,
-                   help=f"Gaussian taps (default {DEFAULTS['window']}; with --shears "
-                        f"{occl[1]}, or {lines[1]} with --select lines or occlusion)")
-    g.add_argument("--filters", choices=FILTER_NAMES, default=DEFAULTS["filters"],
+                   help=f"Gaussian taps (default {DEFAULTS['window']}; a refocused light "
+                        f"field: {lines[1]}, or {occl[1]} with --select coarse)")
+    g.add_argument("--filters", choices=FILTER_NAMES, default=None,
                    help=f"derivative filters (default {DEFAULTS['filters']})")
     g.add_argument("--temporal-radius", type=int, default=None,
                    help="frames either side of the reference frame in the window")
     g.add_argument("--ref-frame", type=int, default=None, help="reference frame index")
-    g.add_argument("--method", choices=METHODS, default=DEFAULTS["method"],
+    g.add_argument("--method", choices=METHODS, default=None,
                    help=f"implementation (same results; default {DEFAULTS['method']})")
     g.add_argument("--no-slant-correction", action="store_true",
                    help="read U_Z as the paper does (no slant-motion correction)")
-    g.add_argument("--combine", choices=COMBINE, default=DEFAULTS["combine"],
+    g.add_argument("--combine", choices=COMBINE, default=None,
                    help="how the two estimates of v, z_x, z_y, u_z are combined "
                         f"(default {DEFAULTS['combine']})")
 
@@ -89,16 +89,15 @@ def _model_list(text: str) -> tuple[str, ...]:
 
 
 def _estimator_settings(a) -> dict:
-    """The estimator settings given on the command line (unset ones keep the library's
-    defaults, or the light-field choice's)."""
+    """The estimator settings given on the command line; those not given are left out and
+    keep the library's defaults (or the light-field choice's), so that a refocused light
+    field can refuse the single pass's settings instead of ignoring them."""
     s = dict(filters=a.filters, temporal_radius=a.temporal_radius, ref_frame=a.ref_frame,
-             method=a.method, slant_correction=not a.no_slant_correction, combine=a.combine,
-             motion=a.motion)
-    if a.sigma is not None:
-        s["sigma"] = a.sigma
-    if a.window is not None:
-        s["window"] = a.window
-    return s
+             method=a.method, combine=a.combine, motion=a.motion, sigma=a.sigma,
+             window=a.window)
+    if a.no_slant_correction:
+        s["slant_correction"] = False
+    return {k: v for k, v in s.items() if v is not None}
 
 
 def _positive_int(text: str) -> int:
@@ -112,19 +111,20 @@ def _positive_int(text: str) -> int:
 
 
 def _shear_range(values: list[str]):
-    """``--shears MIN MAX`` (integers, px per view) or ``--shears auto``."""
+    """``--shears MIN MAX`` (integers, px per view), ``--shears auto`` or ``--shears
+    none``."""
     from gridflow.errors import UsageError
 
-    if values == ["auto"]:
-        return "auto"
+    if values in (["auto"], ["none"]):
+        return values[0]
     try:
         lo, hi = (int(t) for t in values)
     except ValueError:
-        raise UsageError(f"--shears: expected MIN MAX (two integers) or 'auto', got "
+        raise UsageError(f"--shears: expected MIN MAX (two integers), 'auto' or 'none', got "
                          f"{' '.join(values)!r}") from None
     if lo > hi:
         raise UsageError(f"--shears: expected MIN <= MAX, got {lo} {hi}")
-    return tuple(range(lo, hi + 1))
+    return range(lo, hi + 1)          # spelt out only once checked against the views
 
 
 def cmd_generate(a) -> int:
@@ -147,7 +147,8 @@ def cmd_estimate(a) -> int:
     shears = None if a.shears is None else _shear_range(a.shears)
     report = estimate_input(a.input, a.output, models=a.model,
                             settings=_estimator_settings(a), views=a.views, shears=shears,
-                            select=a.select)
+                            select=a.select, fill=not a.no_fill, median=a.median,
+                            progress=not a.no_progress)
     for line in report.lines:
         print(line)
     return 0
@@ -160,8 +161,9 @@ def cmd_evaluate(a) -> int:
     r = evaluate_input(a.estimate, a.volume)
     if r.hci is not None:
         h = r.hci
-        print(f"HCI benchmark scores of the disparity (15-px border left out, "
-              f"{h['n_pixels']} pixels, {h['n_nonfinite']} not finite): MSE x 100 = "
+        print(f"HCI benchmark scores of the disparity (the toolkit's rule: a 15-px border "
+              f"left out, {h['n_pixels']} pixels scored; {h['n_nonfinite']} without a value, "
+              f"left out of the MSE and not counted as bad): MSE x 100 = "
               f"{h['mse_x100']:.3f}, BadPix(0.07) = {h['badpix_007']:.2f} %, BadPix(0.03) = "
               f"{h['badpix_003']:.2f} %, BadPix(0.01) = {h['badpix_001']:.2f} %")
     print(f"model {r.model}: Eq. 22 over interior pixels with finite truth"
@@ -314,7 +316,15 @@ def cmd_leaf(a) -> int:
 
 
 def cmd_peers(a) -> int:
+    from gridflow.errors import UsageError
     from gridflow.io import check_output
+
+    try:                                # the optical-flow peers: the 'peers' extra
+        import cv2  # noqa: F401
+        import skimage.registration  # noqa: F401
+    except ImportError as e:
+        raise UsageError(f"gridflow peers needs the peer methods' packages ({e.name} is "
+                         "missing): pip install 'gridflow[peers]'") from None
 
     from .peers import run_peers, score_hci_scene
 
@@ -371,19 +381,33 @@ def build_parser() -> argparse.ArgumentParser:
                                  "light field scene folder (input_Cam000.png ...)")
     p.add_argument("--views", type=_positive_int, default=None,
                    help="HCI scenes: the central VIEWS x VIEWS views to use (odd; default "
-                        "5, what 5-tap camera filters reach; all with --select lines or "
-                        "occlusion)")
+                        "all, or 5, what 5-tap camera filters reach, with --shears none or "
+                        "--select coarse)")
     _add_estimator_args(p)
     p.add_argument("--shears", nargs="+", default=None, metavar="MIN MAX",
-                   help="light fields of one frame: refocus over the integer disparities "
-                        "MIN..MAX (px per view) for disparities beyond about +-1; 'auto': "
-                        "an HCI scene's stated range")
-    p.add_argument("--select", choices=SELECTS, default=SELECTS[0],
-                   help="with --shears: each pixel's shear nearest a coarse estimate "
-                        "(default; fine periodic texture), or chosen among camera "
-                        "sub-grids and shifted windows: 1-D ones along the centre row and "
-                        "column ('lines': occlusions and thin structures) or square ones "
-                        "('occlusion'); docs/model.md")
+                   help="a light field of one frame on a square grid is refocused by "
+                        "default, over the range its parameters.cfg states, else one a "
+                        "coarse pass estimates from the data (printed): 'auto' (the "
+                        "default); MIN MAX: the integer disparities MIN..MAX (px per "
+                        "view); 'none': the estimator's single pass, for disparities "
+                        "within about +-1 px per view. A volume of several frames gets "
+                        "the single pass")
+    p.add_argument("--select", choices=SELECTS, default=None,
+                   help="refocusing: each pixel's estimate chosen among 1-D camera "
+                        "sub-grids along the centre row and column and shifted windows "
+                        "('lines', the default: occlusions and thin structures), square "
+                        "sub-grids ('occlusion'), or the shear nearest a coarse estimate "
+                        "('coarse': fine periodic texture, where a wrong shear can "
+                        "alias); docs/model.md")
+    p.add_argument("--median", type=int, default=3, metavar="SIZE",
+                   help="refocusing: a SIZE x SIZE median of the disparity after the choice "
+                        "(default 3; 0: none): a pixel that disagrees with most of its "
+                        "neighbours (a wrong shear, a fattened edge) takes theirs")
+    p.add_argument("--no-fill", action="store_true",
+                   help="refocusing: leave pixels without an estimate of their own NaN "
+                        "(default: filled from their neighbours, marked in 'filled')")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no messages before long steps and no progress bar")
     p.add_argument("-o", "--output", required=True, help="output estimate .npz")
     p.set_defaults(func=cmd_estimate)
 

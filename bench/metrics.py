@@ -118,26 +118,30 @@ def eq22_table(rows: list[dict]) -> str:
 
 
 def hci_metrics(d_est: np.ndarray, d_gt: np.ndarray, border: int = 15) -> dict:
-    """The HCI benchmark's scores of a disparity map.
+    """The HCI benchmark's scores of a disparity map, by its toolkit's rule.
 
     Parameters
     ----------
     d_est, d_gt : ndarray, shape (H, W)
-        Estimated and true disparity (px per camera step).  Non-finite estimates count
-        as wrong (BadPix) and are left out of the MSE; pixels where the truth is not
-        finite are not scored.
+        Estimated and true disparity (px per camera step).  Pixels where the truth has no
+        (finite) value are not scored (a rendered scene's background; the benchmark's
+        truth has one everywhere).  Of the rest, a pixel where the estimate has none is
+        left out of the MSE and is not counted as bad in BadPix, as the benchmark's
+        evaluation toolkit does (``lightfield-analysis/evaluation-toolkit``:
+        ``MSE.get_score`` masks non-finite estimates, ``BadPix`` tests ``|d - gt| > tau``,
+        false for NaN); ``n_nonfinite`` says how many there are, so that a sparse map
+        cannot pass for a dense one.
     border : int
         Pixels left out at each side (the benchmark's 15).
 
     Returns
     -------
     dict
-        ``mse_x100, badpix_007, badpix_003, badpix_001`` (percent), ``n_pixels`` (scored),
-        ``n_nonfinite`` (of those, estimates that are not finite).
+        ``mse_x100, badpix_007, badpix_003, badpix_001`` (percent of the scored pixels),
+        ``n_pixels`` (scored), ``n_nonfinite`` (of those, estimates without a value).
     """
     e = np.asarray(d_est, float)[border:-border or None, border:-border or None]
     g = np.asarray(d_gt, float)[border:-border or None, border:-border or None]
-    # pixels without truth (a rendered scene's background) are not scored
     has = np.isfinite(g)
     e, g = e[has], g[has]
     ok = np.isfinite(e)
@@ -145,5 +149,5 @@ def hci_metrics(d_est: np.ndarray, d_gt: np.ndarray, border: int = 15) -> dict:
     out = {"mse_x100": float(100.0 * np.mean(err[ok] ** 2)) if ok.any() else float("nan"),
            "n_pixels": int(g.size), "n_nonfinite": int((~ok).sum())}
     for tau, key in ((0.07, "badpix_007"), (0.03, "badpix_003"), (0.01, "badpix_001")):
-        out[key] = float(100.0 * np.mean(~ok | (err > tau)))
+        out[key] = (float(100.0 * np.mean(ok & (err > tau))) if g.size else float("nan"))
     return out

@@ -23,7 +23,9 @@ import numpy as np
 
 from gridflow.errors import FileFormatError, UsageError
 from gridflow.estimator import Estimate, EstimatorSettings, estimate_models
-from gridflow.estimator.lightfield import SELECT_DEFAULTS, estimate_refocused, stated_shears
+from gridflow.estimator.lightfield import (SELECT_DEFAULTS, SELECTS, check_shears,
+                                          estimate_refocused, stated_shears)
+from gridflow.estimator.settings import InputError
 from gridflow.io import check_output, load_estimate, load_volume, save_estimate, save_volume
 
 from .metrics import evaluate, hci_metrics
@@ -111,9 +113,25 @@ class EstimateReport:
     seconds: float = 0.0
 
 
+# settings that only the estimator's single pass over a volume uses: refused where a
+# light field is refocused, instead of being ignored
+_SINGLE_PASS_ONLY = {"temporal_radius": "--temporal-radius", "ref_frame": "--ref-frame",
+                     "method": "--method", "slant_correction": "--no-slant-correction",
+                     "combine": "--combine", "motion": "--motion"}
+
+
 def estimate_input(path, output, *, models=None, settings: dict | None = None, views=None,
-                   shears=None, select: str = "coarse") -> EstimateReport:
+                   shears=None, select: str | None = None, fill: bool = True,
+                   median: int = 3, progress: bool = False) -> EstimateReport:
     """Estimate the volume, image folder or light field ``path``; write ``output``.
+
+    A light field of one frame on a square grid (an HCI scene, a static camera-grid
+    folder, a one-frame volume) is refocused by default (``shears=None``): over the
+    disparity range its ``parameters.cfg`` states, else one estimated from the data
+    (:func:`gridflow.estimator.lightfield.estimate_shear_range`), each pixel's estimate
+    chosen among 1-D camera sub-grids (``select="lines"``), with the light-field
+    smoothing scale and a dense, filled result with its confidence.  A volume of several
+    frames gets the estimator's single pass.
 
     Parameters
     ----------
@@ -124,32 +142,55 @@ def estimate_input(path, output, *, models=None, settings: dict | None = None, v
     models : tuple of str, optional
         Default ``("full",)``, or ``("bcc",)`` for a light field of one frame.
     settings : dict
-        Estimator settings (:class:`gridflow.estimator.EstimatorSettings`); a
-        ``ref_frame`` of None takes the image folder's ``reference_frame``.
+        The estimator settings given (:class:`gridflow.estimator.EstimatorSettings`; those
+        not given keep their defaults); a ``ref_frame`` of None takes the image folder's
+        ``reference_frame``.  Refocusing uses ``sigma``, ``window`` (None: the choice's
+        defaults) and ``filters`` and refuses the single pass's other settings.
     views : int, optional
-        HCI scenes: the central views x views used.  Default 5 (what 5-tap camera filters
-        reach), all with ``shears`` and an occlusion-aware ``select``.
-    shears : tuple of int or "auto", optional
-        Refocus a light field of one frame over these integer disparities
-        (:func:`gridflow.estimator.lightfield.estimate_refocused`); ``"auto"``: the range
-        the scene states.  ``settings`` then gives ``sigma``, ``window`` (None: the
-        choice's defaults) and ``filters``.
-    select : {"coarse", "lines", "occlusion"}
-        With ``shears``: how each pixel's shear is chosen.
+        HCI scenes: the central views x views used.  Default all, or 5 (what 5-tap camera
+        filters reach) for the single pass and ``select="coarse"``.
+    shears : None, "auto", "none" or tuple of int
+        None: refocus a light field of one frame (as ``"auto"``), the single pass
+        otherwise.  ``"auto"``: the stated disparity range, else one estimated from the
+        data.  ``"none"``: the single pass.  A tuple: those integer shears.
+    select : {"lines", "occlusion", "coarse"}, optional
+        How each pixel's shear is chosen (default ``"lines"``).
+    fill, median
+        Refocusing: give pixels without an estimate one from their neighbours (a dense
+        map), and the size of the median filter over the disparity (0: none);
+        :func:`gridflow.estimator.lightfield.estimate_refocused`.
+    progress : bool
+        Print what is about to happen before each long step, and a progress bar over the
+        shears, on stderr.
     """
-    settings = dict(settings or {})
-    if shears is None:
+    settings = {k: v for k, v in (settings or {}).items() if v is not None}
+    select = SELECTS[0] if select is None else select
+    if shears == "none":
+        shears = ()
+    if shears != ():
+        EstimatorSettings(**{k: v for k, v in settings.items()
+                             if k in ("sigma", "window", "filters")})
+    else:
         EstimatorSettings(**settings)           # bad settings fail before the volume loads
     if views is None:
-        # all views where the occlusion-aware shears use the outer ones, else what the
-        # 5-tap camera filters reach
-        views = None if (shears is not None and select != "coarse") else 5
+        # all views where refocusing's sub-grids use the outer ones, else what the 5-tap
+        # camera filters reach
+        views = 5 if (shears == () or select == "coarse") else None
     data = load_input(path, views=views)
-    if shears is not None:
+    T, gr, gc = data.volume.shape[:3]
+    refocus = shears != () and (shears is not None or (T == 1 and gr == gc and gr % 2 == 1
+                                                        and gr >= 3))
+    notes = []
+    if shears is None and not refocus and T == 1:
+        notes.append(f"not refocused: {path} is a {gr}x{gc} grid (refocusing needs a square "
+                     "grid with an odd number of views); the single pass")
+    if refocus:
         check_output(output, suffixes=".npz", inputs=[path], what="-o")
-        return _estimate_refocused(path, data, output, models, settings, shears, select)
+        return _estimate_refocused(path, data, output, models, settings,
+                                   "auto" if shears is None else shears, select, progress,
+                                   fill=fill, median=median)
     if models is None:
-        models = ("bcc",) if data.volume.shape[0] == 1 else ("full",)
+        models = ("bcc",) if T == 1 else ("full",)
     outputs = model_outputs(output, models)
     for p in outputs.values():
         check_output(p, suffixes=".npz", inputs=[path], what="-o")
@@ -159,7 +200,7 @@ def estimate_input(path, output, *, models=None, settings: dict | None = None, v
     t0 = time.perf_counter()
     ests = estimate_models(data.volume, data.focal_length, data.camera_spacing,
                            models=models, principal_point=data.principal_point, **settings)
-    report = EstimateReport(seconds=time.perf_counter() - t0)
+    report = EstimateReport(lines=notes, seconds=time.perf_counter() - t0)
     geometry = data.meta.get("hci")
     for m, est in ests.items():
         if geometry and "disparity" in est.maps:
@@ -176,40 +217,103 @@ def estimate_input(path, output, *, models=None, settings: dict | None = None, v
                             f"{int(est.interior.sum())} interior pixels valid")
     backend = next(iter(ests.values())).settings["backend"]
     report.lines.append(f"estimated {', '.join(models)} in {report.seconds:.2f} s "
-                        f"(method {settings.get('method', 'fast')}: the {backend} backend)")
+                        f"(method {settings.get('method', 'fast')}: the {backend} backend; "
+                        f"{gr}x{gc} views, {T} frames)")
     return report
 
 
-def _estimate_refocused(path, data, output, models, settings, shears, select) -> EstimateReport:
+def _views_used(n: int, select: str) -> str:
+    """Which of an n x n grid's views a refocusing choice reads (its default sub-grids)."""
+    if select == "lines":
+        return f"the centre row and column, {2 * n - 1} views"
+    if select == "occlusion":
+        m = min(5, n)
+        return f"{m}x{m} sub-grids at the centre, edges and corners, {n * n} views"
+    return f"all {n * n} views"
+
+
+def _estimate_refocused(path, data, output, models, settings, shears, select,
+                        progress=False, fill=True, median=3) -> EstimateReport:
     """A static light field refocused over integer shears."""
+    import sys
+
+    from gridflow.estimator.lightfield import estimate_shear_range
+
+    def say(text):
+        if progress:
+            print(text, file=sys.stderr, flush=True)
+
     T = data.volume.shape[0]
     if T != 1:
         raise UsageError(f"--shears refocuses a light field of one frame; {path} has "
                          f"{T} frames")
     if models not in (None, ("bcc",)):
-        raise UsageError(f"--shears takes model bcc (a light field of one frame), got "
-                         f"{','.join(models)}")
-    if settings.get("motion", "translation") != "translation":
-        raise UsageError(f"--shears refocuses a light field of one frame, which has no "
-                         f"motion; --motion {settings['motion']} does not apply")
-    geometry = data.meta.get("hci")
-    if shears == "auto":
-        shears = stated_shears((geometry or {}).get("disp_range"))
-        if shears is None:
-            raise UsageError(f"--shears auto: {path} states no disparity range "
-                             "(parameters.cfg [meta] disp_min, disp_max); give MIN MAX")
+        raise UsageError(f"a light field of one frame is refocused with model bcc, got "
+                         f"--model {','.join(models)} (--shears none: the single pass)")
+    given = [flag for key, flag in _SINGLE_PASS_ONLY.items() if key in settings
+             and not (key == "motion" and settings[key] == "translation")
+             and not (key == "slant_correction" and settings[key])]
+    if given:
+        raise UsageError(f"{', '.join(given)}: the estimator's single pass only; a light "
+                         f"field of one frame ({path}) is refocused (--shears none: the "
+                         "single pass)")
     views = data.volume[0]
-    if views.shape[0] != views.shape[1]:
-        raise UsageError(f"--shears needs a square grid of views, {path} has "
-                         f"{views.shape[0]}x{views.shape[1]}")
+    if views.shape[0] != views.shape[1] or views.shape[0] % 2 == 0:
+        raise UsageError(f"--shears needs a square grid with an odd number of views, {path} "
+                         f"has {views.shape[0]}x{views.shape[1]}")
+    n = views.shape[0]
+    geometry = data.meta.get("hci")
+    filters = settings.get("filters", "matched5")
+    lines = []
+    H, W = views.shape[-2:]
+    if shears == "auto":
+        stated = (geometry or {}).get("disp_range")
+        try:
+            shears = stated_shears(stated)
+            if shears is not None:
+                check_shears(shears, n, H, W, what="the stated disparity range")
+        except InputError as e:
+            raise FileFormatError(f"{Path(path) / 'parameters.cfg'}: [meta] disp_min, "
+                                  f"disp_max: {e}") from None
+        if shears is not None:
+            lines.append(f"disparity range {stated[0]:g} .. {stated[1]:g} px per view, as "
+                         f"{path} states (parameters.cfg)")
+        else:
+            say(f"{path} states no disparity range: a coarse pass estimates it ...")
+            shears, info = estimate_shear_range(views, filters=filters)
+            check_shears(shears, n, H, W, what="the disparity range estimated from the data")
+            lines.append(f"disparity range {info['lo']:.2f} .. {info['hi']:.2f} px per view, "
+                         f"estimated from the data (coarse pass at 1/{info['k']} resolution; "
+                         "none stated: --shears MIN MAX to give one)")
+    else:
+        try:
+            check_shears(shears, n, H, W, what="--shears")
+        except InputError as e:
+            raise UsageError(str(e)) from None
+    shears = tuple(int(s) for s in shears)
     sigma = settings.get("sigma")
     window = settings.get("window")
     sigma = SELECT_DEFAULTS[select][0] if sigma is None else sigma
     window = SELECT_DEFAULTS[select][1] if window is None else window
-    filters = settings.get("filters", "matched5")
+    say(f"refocusing {n}x{n} views ({_views_used(n, select)}) over shears "
+        f"{shears[0]} .. {shears[-1]} ({select}; sigma {sigma:g} px, {window} taps) ...")
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(shears), unit="shear", file=sys.stderr, leave=False)
+
+    def step(done, total):
+        if bar is not None:
+            bar.update(done - bar.n)
+
     t0 = time.perf_counter()
-    res = estimate_refocused(views, shears, sigma=sigma, window=window, filters=filters,
-                             select=select, fill=True)
+    try:
+        res = estimate_refocused(views, shears, sigma=sigma, window=window, filters=filters,
+                                 select=select, fill=fill, median=median, progress=step)
+    finally:
+        if bar is not None:
+            bar.close()
     seconds = time.perf_counter() - t0
     d = res["disparity"]
     if geometry:
@@ -226,13 +330,17 @@ def _estimate_refocused(path, data, output, models, settings, shears, select) ->
             "filled": res["filled"].astype(float)}
     est = Estimate(maps=maps, model="bcc", interior=res["valid"] | res["filled"],
                    settings={"shears": list(shears), "select": select, "sigma": sigma,
-                             "window": window, "filters": filters,
+                             "window": window, "filters": filters, "fill": fill,
+                             "median": median,
                              "views": list(views.shape[:2]), "Z_units": units})
     save_estimate(output, est)
-    lines = [f"wrote {output}: {views.shape[0]}x{views.shape[1]} views refocused over shears "
-             f"{list(shears)} ({select}); {int(res['valid'].sum())} pixels estimated, "
-             f"{int(res['filled'].sum())} filled from their neighbours ('filled')",
-             f"estimated in {seconds:.2f} s"]
+    n_px = d.size
+    n_none = int((~np.isfinite(d)).sum())
+    lines += [f"wrote {output}: {n}x{n} views ({_views_used(n, select)}) refocused over "
+              f"shears {list(shears)} ({select}); {int(res['valid'].sum())} of {n_px} pixels "
+              f"estimated, {int(res['filled'].sum())} filled from their neighbours "
+              f"('filled'), {n_none} without a value",
+              f"estimated in {seconds:.2f} s"]
     return EstimateReport(lines, seconds)
 
 

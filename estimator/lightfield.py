@@ -27,7 +27,7 @@ pixels exactly, with no interpolation) and chooses, per pixel, one shear's estim
     model errors are aggregated by a guided filter (He, Sun and Tang, ECCV 2010) on the
     centre view, so each pixel pools the costs of neighbours of its own brightness,
     and the smallest wins.
-``select="lines"``
+``select="lines"`` (the default)
     As ``"occlusion"``, with 1-D camera sub-grids instead of square ones: segments of
     ``subgrid`` views along the centre row and the centre column of the grid (on 9 x 9
     views: three of each, 17 views).  A row of cameras moves a point along x only, so
@@ -48,22 +48,122 @@ import numpy as np
 from .driver import estimate
 from .settings import InputError
 
-__all__ = ["shear", "estimate_refocused", "SELECT_DEFAULTS", "SELECTS", "stated_shears"]
+__all__ = ["shear", "estimate_refocused", "SELECT_DEFAULTS", "SELECTS", "stated_shears",
+           "estimate_shear_range", "check_shears"]
 
 # (sigma px, window taps) of each shear choice when not given: the occlusion-aware choices
 # work with small windows (their shifted windows and sub-grids handle the edges), the
 # coarse one keeps the estimator's usual light-field window
 SELECT_DEFAULTS = {"lines": (1.0, 5), "occlusion": (1.0, 5), "coarse": (2.0, 9)}
-# the ways to choose a pixel's shear, the default first
-SELECTS = ("coarse", "lines", "occlusion")
+# the ways to choose a pixel's shear, the default first: the 1-D sub-grids handle
+# occlusions and thin structures, where most light-field scenes lose their depth
+SELECTS = ("lines", "occlusion", "coarse")
 
 
-def stated_shears(disp_range) -> tuple[int, ...] | None:
+def stated_shears(disp_range) -> range | None:
     """The integer shears covering a stated disparity range ``(min, max)`` (px per view;
-    an HCI scene's ``parameters.cfg`` states one), or None where none is stated."""
+    an HCI scene's ``parameters.cfg`` states one), or None where none is stated.  A range
+    object: a wild statement is refused by :func:`check_shears` before it is spelt out."""
     if not disp_range:
         return None
-    return tuple(range(int(np.floor(disp_range[0])), int(np.ceil(disp_range[1])) + 1))
+    lo, hi = (float(x) for x in disp_range)
+    if not (np.isfinite(lo) and np.isfinite(hi)) or lo > hi:
+        raise InputError(f"disparity range must be finite with min <= max, got "
+                         f"{disp_range[0]!r} .. {disp_range[1]!r}")
+    return range(int(np.floor(lo)), int(np.ceil(hi)) + 1)
+
+
+def check_shears(shears, n: int, H: int, W: int, what: str = "shears") -> None:
+    """Refuse shears that move the outer views' pixels out of the image: at ``|s| (n // 2)
+    >= min(H, W) / 2`` px no pixel has all its views, so nothing could be estimated
+    (and sweeping them would only cost time)."""
+    reach = max(1, (min(H, W) // 2 - 1) // max(1, n // 2))
+    if isinstance(shears, range):       # its ends without spelling it out
+        lo, hi = (shears[0], shears[-1]) if shears.step > 0 else (shears[-1], shears[0])
+    else:
+        lo, hi = min(shears), max(shears)
+    if max(abs(lo), abs(hi)) > reach:
+        raise InputError(f"{what} {lo} .. {hi}: beyond +-{reach} px per view a {n}x{n} grid "
+                         f"of {H}x{W} views moves every pixel's outer views out of the "
+                         "image")
+
+
+def estimate_shear_range(views: np.ndarray, *, filters: str = "matched5",
+                         coverage: float = 2.0) -> tuple[tuple[int, ...], dict]:
+    """The integer shears covering a light field's disparities, from the data: a coarse
+    pass where no range is stated (an HCI scene's ``parameters.cfg`` states one).
+
+    The views are low-passed and decimated by ``k`` in x and y, which divides every
+    disparity by ``k``; the estimator (model ``bcc``, sigma 1 px, 5 taps, the central
+    5 x 5 views) then follows disparities of up to about ``k`` px per view within its
+    camera filters' reach of about 1 px.  Starting at the coarsest level (``k = 8``, or
+    as coarse as leaves 32 px), the next finer level is tried while the disparities found
+    stay within that reach there, and kept unless its own go far beyond it (over twice
+    the reach: the estimator has failed there): the range comes from the finest level
+    that resolves it (the finer the level, the less a low-pass mixes thin structures
+    with what lies behind them).  Estimates beyond twice the reach (an occlusion edge,
+    aliasing) do not count.
+
+    Parameters
+    ----------
+    views : ndarray, shape (n, n, H, W)
+        A static light field (HCI sign, camera steps as the unit of disparity), n odd.
+    filters : str
+        Derivative filters of the coarse pass.
+    coverage : float
+        The range spans the central ``100 - coverage`` per cent of the coarse disparities
+        (``coverage / 2`` per cent left out at each end: single wild pixels do not widen
+        it).
+
+    Returns
+    -------
+    shears : tuple of int
+        ``floor(lo) .. ceil(hi)``, as for a stated range (:func:`stated_shears`).
+    info : dict
+        ``lo``, ``hi`` (the coarse disparities' percentiles, px per view), ``k`` (the
+        decimation used) and ``levels`` (each level tried: k, lo, hi).
+    """
+    v = np.asarray(views, dtype=np.float64)
+    if v.ndim != 4 or v.shape[0] != v.shape[1] or v.shape[0] % 2 == 0:
+        raise InputError(f"views must have shape (n, n, H, W) with n odd, got {v.shape}")
+    n = v.shape[0]
+    H, W = v.shape[-2:]
+    # the camera filters need 5 views along each axis: the central 5 x 5 (or all of 3 x 3)
+    m = min(n, 5)
+    c0 = (n - m) // 2
+    v = v[c0:c0 + m, c0:c0 + m]
+    ks = [k for k in (8, 4, 2, 1) if min(H, W) // k >= 32] or [1]
+    levels = []
+    chosen = None
+    for k in ks:
+        vk = v if k == 1 else _lowpass(v, 0.5 * k)[..., k // 2::k, k // 2::k]
+        e = estimate(np.ascontiguousarray(vk)[None], float(vk.shape[-1]), (1.0, 1.0),
+                     model="bcc", sigma=1.0, window=5, filters=filters)
+        d = e["disparity"][e.interior]
+        # beyond twice the filters' reach the estimator has failed (an occlusion edge,
+        # aliasing), not seen a disparity
+        d = d[np.isfinite(d) & (np.abs(d) <= 2 * _REACH)]
+        if d.size < 16:
+            continue
+        lo, hi = (float(q) * k for q in np.percentile(d, [coverage / 2, 100 - coverage / 2]))
+        levels.append((k, lo, hi))
+        if chosen is not None and max(abs(lo), abs(hi)) / k > 2 * _REACH:
+            # far beyond this level's filters (aliasing, the texture lost in the
+            # decimation): the coarser level's range stands
+            break
+        chosen = (k, lo, hi)
+        if max(abs(lo), abs(hi)) / (k / 2) > _REACH:
+            break           # the next finer level would not follow these disparities
+    if chosen is None:
+        raise InputError(f"views of {H}x{W} px: too few pixels for a coarse disparity "
+                         "pass; state the range (shears MIN MAX)")
+    k, lo, hi = chosen
+    shears = tuple(range(int(np.floor(lo)), int(np.ceil(hi)) + 1))
+    return shears, {"lo": lo, "hi": hi, "k": k, "levels": levels}
+
+
+# the disparity (px per view) the coarse pass's camera filters follow
+_REACH = 1.0
 
 
 def shear(views: np.ndarray, s: int) -> np.ndarray:
@@ -161,9 +261,10 @@ def _admissible(disp, err, interior, s: int, m: int):
 
 def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
                        sigma: float | None = None, window: int | None = None,
-                       filters: str = "matched5", select: str = "coarse",
-                       subgrid: int = 5, aggregate: int = 3, coarse_sigma: float = 2.0,
-                       fill: bool = False) -> dict:
+                       filters: str = "matched5", select: str = "lines",
+                       subgrid: int | None = None, aggregate: int = 3,
+                       coarse_sigma: float = 2.0, fill: bool = True, median: int = 3,
+                       progress=None) -> dict:
     """Disparity of the centre view over a range of integer shears.
 
     Parameters
@@ -185,19 +286,31 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         structures), ``"occlusion"`` (the same with square sub-grids) or ``"coarse"``
         (the shear nearest to a coarse disparity; for fine periodic texture, where a
         wrong shear can alias).
-    subgrid : int
+    subgrid : int, optional
         ``"lines"`` and ``"occlusion"``: odd number of views across a camera sub-grid
         (square ones at the centre, edges and corners of the grid: nine of them on a
         9 x 9 grid, one on a 5 x 5; lines of that many views at the centre and both
-        ends of the centre row and column).
+        ends of the centre row and column); default 5, or the grid's size if smaller.
+        (The whole row and column, ``subgrid = n``, is faster and measured better on
+        two of three scenes, worse between thin stripes: ``bench/README.md``, *Light
+        fields*.)
     aggregate : int
         ``"lines"`` and ``"occlusion"``: radius (px) of the guided filter that
         aggregates the costs.
     coarse_sigma : float
         ``"coarse"``: low-pass of the coarse pass, px; its window is twice ``sigma``.
     fill : bool
-        Give pixels without an admissible estimate the normalised convolution (Gaussian,
-        ``2 sigma``) of their neighbours' estimates; ``filled`` marks them.
+        Give every pixel without an admissible estimate one from its neighbours (the
+        normalised convolution of theirs, a Gaussian of ``2 sigma``; beyond its reach and
+        at the image border the nearest such value): a dense map, ``filled`` marks them
+        and their ``confidence`` is the lowest of the image's.
+    median : int
+        Size of a median filter over the disparity after the choice (and the fill), 0 or
+        1 for none: a pixel whose estimate disagrees with most of its neighbours (a
+        wrong shear, a fattened edge pixel) takes theirs; ``model_error`` and
+        ``confidence`` stay those of the pixel's own estimate.
+    progress : callable, optional
+        Called as ``progress(done, total)`` after each shear.
 
     Returns
     -------
@@ -211,12 +324,17 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     v = np.asarray(views, dtype=np.float64)
     if v.ndim != 4 or v.shape[0] != v.shape[1] or v.shape[0] % 2 == 0:
         raise InputError(f"views must have shape (n, n, H, W) with n odd, got {v.shape}")
+    if isinstance(shifts, range) and len(shifts):
+        check_shears(shifts, v.shape[0], *v.shape[-2:], what="shifts")
     shifts = [int(s) for s in shifts]
     if not shifts or len(set(shifts)) != len(shifts):
         raise InputError(f"shifts must be distinct integers, got {shifts}")
+    check_shears(shifts, v.shape[0], *v.shape[-2:], what="shifts")
     if select not in SELECT_DEFAULTS:
         raise InputError(f"select must be one of {sorted(SELECT_DEFAULTS)}, got {select!r}")
     n = v.shape[0]
+    if subgrid is None:
+        subgrid = min(5, n)
     if select != "coarse" and (subgrid % 2 == 0 or not 3 <= subgrid <= n):
         raise InputError(f"subgrid must be odd, at least 3 and at most the grid's {n}, "
                          f"got {subgrid}")
@@ -225,31 +343,65 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     H, W = v.shape[-2:]
     lo = np.array(sorted(shifts))
     if select == "coarse":
-        out = _select_coarse(v, lo, sigma, window, filters, coarse_sigma)
+        out = _select_coarse(v, lo, sigma, window, filters, coarse_sigma, progress)
     else:
         out = _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate,
-                                lines=select == "lines")
+                                lines=select == "lines", progress=progress)
     disp, err = out["disparity"], out["model_error"]
     valid = np.isfinite(disp)
     with np.errstate(divide="ignore", invalid="ignore"):
         med = np.nanmedian(err[valid]) if valid.any() else np.nan
         conf = np.where(valid, -np.log10(err / med), np.nan)
     filled = np.zeros((H, W), dtype=bool)
-    if fill and valid.any():
-        # normalised convolution of the valid estimates (Gaussian, 2 sigma) into the
-        # pixels without one, inside the region the estimator covers
-        from scipy.ndimage import gaussian_filter
-
-        w = valid.astype(float)
-        num = gaussian_filter(np.where(valid, disp, 0.0), 2 * sigma, mode="nearest")
-        den = gaussian_filter(w, 2 * sigma, mode="nearest")
-        filled = ~valid & out["inside"] & (den > 1e-3)
-        disp = np.where(filled, num / np.where(den > 0, den, 1.0), disp)
+    if fill and valid.any() and not valid.all():
+        disp, filled = _fill(disp, valid, out["inside"], sigma)
+        # a filled pixel has no estimate of its own: the lowest confidence there is
+        conf = np.where(filled, np.nanmin(conf), conf)
+    if median > 1 and np.isfinite(disp).any():
+        disp = _median(disp, int(median))
     res = {"disparity": disp, "shear": out["shear"], "model_error": err, "confidence": conf,
            "valid": valid, "filled": filled}
     if "coarse" in out:
         res["coarse"] = out["coarse"]
     return res
+
+
+def _median(disp, size):
+    """A ``size`` x ``size`` median of the disparity (scipy's, edges repeated); pixels
+    without a value keep none and lend their nearest neighbour's to the filter."""
+    from scipy.ndimage import distance_transform_edt, median_filter
+
+    none = ~np.isfinite(disp)
+    d = disp
+    if none.any():
+        d = disp[tuple(distance_transform_edt(none, return_distances=False,
+                                              return_indices=True))]
+    return np.where(none, np.nan, median_filter(d, size, mode="nearest"))
+
+
+def _fill(disp, valid, inside, sigma):
+    """Every pixel without an admissible estimate given one from its neighbours.
+
+    Inside the region the estimator covers, the normalised convolution of the valid
+    estimates (a Gaussian of ``2 sigma``, clipped to the image's size: beyond it the
+    average is the whole image's); where that has too little weight (a hole wider than
+    the Gaussian) and outside (the image border), the nearest filled value.
+
+    Returns ``(disparity, filled)``, both shape (H, W).
+    """
+    from scipy.ndimage import distance_transform_edt, gaussian_filter
+
+    H, W = disp.shape
+    s = min(2 * float(sigma), float(max(H, W)))
+    num = gaussian_filter(np.where(valid, disp, 0.0), s, mode="nearest")
+    den = gaussian_filter(valid.astype(float), s, mode="nearest")
+    conv = ~valid & inside & (den > 1e-3)
+    out = np.where(conv, num / np.where(den > 0, den, 1.0), disp)
+    rest = ~(valid | conv)
+    if rest.any():
+        near = distance_transform_edt(rest, return_distances=False, return_indices=True)
+        out = out[tuple(near)]
+    return out, ~valid
 
 
 def _subgrid_estimates(sv, subgrid, sigma, window, filters, lines):
@@ -265,15 +417,16 @@ def _subgrid_estimates(sv, subgrid, sigma, window, filters, lines):
     """
     n = sv.shape[0]
     W = sv.shape[-1]
-    h = subgrid // 2
     kw = dict(model="bcc", sigma=sigma, window=window, filters=filters)
     if not lines:
+        h = subgrid // 2
         for rc, cc in _subgrid_centres(n, subgrid):
             sub = np.ascontiguousarray(sv[rc - h:rc + h + 1, cc - h:cc + h + 1])[None]
             e = estimate(sub, float(W), (1.0, 1.0), **kw)
             yield e["disparity"], e["model_error"], e.interior
         return
     cc = n // 2
+    h = subgrid // 2
     for c in sorted({h, cc, n - 1 - h}):
         row = np.ascontiguousarray(sv[cc:cc + 1, c - h:c + h + 1])[None]
         e = estimate(row, float(W), (1.0, 1.0), **kw)
@@ -283,7 +436,8 @@ def _subgrid_estimates(sv, subgrid, sigma, window, filters, lines):
         yield e["disparity"].T, e["model_error"].T, e.interior.T
 
 
-def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate, lines) -> dict:
+def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate, lines,
+                      progress=None) -> dict:
     """Per shear, the best of the sub-grids and shifted windows; across shears, the
     smallest aggregated cost."""
     n = v.shape[0]
@@ -311,6 +465,8 @@ def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate, lines) 
                     better = es < E[k]
                     E[k] = np.where(better, es, E[k])
                     D[k] = np.where(better, _shift_in(d, oy, ox, np.nan), D[k])
+        if progress is not None:
+            progress(k + 1, lo.size)
     # cost per shear: log model error (inadmissible: worse than any admissible one),
     # aggregated by a guided filter on the centre view so that a pixel pools the costs
     # of neighbours of its own brightness (its own surface), not those across an edge
@@ -334,7 +490,7 @@ def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate, lines) 
             "inside": fin.any(0)}
 
 
-def _select_coarse(v, lo, sigma, window, filters, coarse_sigma) -> dict:
+def _select_coarse(v, lo, sigma, window, filters, coarse_sigma, progress=None) -> dict:
     """The shear nearest to a coarse disparity from the low-passed light field."""
     n = v.shape[0]
     H, W = v.shape[-2:]
@@ -358,6 +514,8 @@ def _select_coarse(v, lo, sigma, window, filters, coarse_sigma) -> dict:
                      window=window, filters=filters)
         D[k], E[k] = _admissible(e["disparity"], e["model_error"], e.interior, int(s),
                                  abs(int(s)) * (n // 2))
+        if progress is not None:
+            progress(k + 1, lo.size)
     # the shear nearest to the coarse disparity where it is admissible; elsewhere the
     # admissible neighbouring shear (one step either side) with the smaller model error;
     # shears further away are not considered: with fine texture an aliased shear can fit

@@ -55,20 +55,21 @@ def test_invalid_estimates_are_counted_not_averaged():
 
 
 def test_hci_scores_by_hand():
-    """MSE x 100 over finite estimates; BadPix(t): |error| > t or not finite, in percent;
-    15 px border left out; pixels without truth not scored."""
+    """The toolkit's rule: MSE x 100 over finite estimates; BadPix(t): |error| > t, in
+    percent of the scored pixels, a pixel without a value not counted as bad; 15 px
+    border left out; pixels without truth not scored."""
     gt = np.zeros((40, 40))
     est = np.zeros((40, 40))
     inner = (slice(15, 25), slice(15, 25))          # the 10 x 10 pixels scored
     e = est[inner]
     e[0, :5] = 0.0699                               # below BadPix(0.07)
     e[0, 5:] = 0.0701                               # above
-    e[1, :] = np.nan                                # not finite: bad, not in the MSE
+    e[1, :] = np.nan                                # not finite: not bad, not in the MSE
     est[:15] = 10.0                                 # in the border: never scored
     gt[24, 24] = np.nan                             # no truth: not scored
     h = hci_metrics(est, gt)
     assert h["n_pixels"] == 99 and h["n_nonfinite"] == 10
-    assert h["badpix_007"] == pytest.approx(100 * (5 + 10) / 99, rel=1e-12)
-    assert h["badpix_003"] == pytest.approx(100 * (10 + 10) / 99, rel=1e-12)
+    assert h["badpix_007"] == pytest.approx(100 * 5 / 99, rel=1e-12)
+    assert h["badpix_003"] == pytest.approx(100 * 10 / 99, rel=1e-12)
     mse = (5 * 0.0699 ** 2 + 5 * 0.0701 ** 2) / 89
     assert h["mse_x100"] == pytest.approx(100 * mse, rel=1e-12)

@@ -1,0 +1,124 @@
+"""Depth from a static light field, step by step: what each step of the default adds.
+
+    python -m gridflow.bench.lightfield_study                  # the table in bench/README.md
+    python -m gridflow.bench.lightfield_study --hci SCENE      # also an HCI scene of yours
+
+Each row adds one step to the one above it, up to the default of ``gridflow estimate``
+on a light field of one frame: the estimator's single pass (the central 5 x 5 views,
+the sinusoid defaults sigma 16 px / 65 taps); refocusing over the shears a coarse pass
+estimates from the data, each pixel's estimate chosen among 1-D camera sub-grids
+(segments of 5 views of the centre row and column) and shifted windows, sigma 1 px /
+5 taps, without and with the fill of the pixels left without an estimate; a 3 x 3
+median of the disparity.  A last row tries the whole row and column instead of
+segments (not in the default: worse between thin stripes).  Scenes: two synthetic
+two-layer scenes of exact disparity (bands 10 px high with 12 px gaps, and thin stripes
+with 8 px gaps, 9 x 9 views, 192^2, foreground and background 2 px per view apart), the
+POV-Ray cube as a 5 x 5 light field (-0.6 .. 3.0 px per view; rendered once into
+``--cache``), and any HCI scene given.  Scores: the HCI benchmark's MSE x 100 and
+BadPix(0.07) by its toolkit's rule (:func:`gridflow.bench.metrics.hci_metrics`), the
+share of scored pixels without a value, and the seconds of each estimate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+from gridflow.bench.metrics import hci_metrics
+from gridflow.estimator import estimate
+from gridflow.estimator.lightfield import estimate_refocused, estimate_shear_range
+
+__all__ = ["STEPS", "synthetic_scenes", "run_step", "study", "main"]
+
+# (label, how): None is the single pass; else estimate_refocused's keywords
+STEPS = [
+    ("single pass (5 x 5 views, sigma 16, 65 taps)", None),
+    ("refocused, lines of 5 views, not filled", dict(fill=False, median=0)),
+    ("+ fill", dict(fill=True, median=0)),
+    ("+ 3 x 3 median (the default)", dict(fill=True, median=3)),
+    ("(not kept) the default with the whole centre row and column",
+     dict(fill=True, median=3, whole_lines=True)),
+]
+
+
+def synthetic_scenes() -> dict:
+    """``{name: (views (9, 9, 192, 192), disparity (192, 192))}``: the two-layer scenes."""
+    from gridflow.generators.lightfield import layered_views
+
+    bands = [(y, y + 10) for y in range(20, 170, 22)]
+    stripes = [(y, y + 8) for y in range(20, 172, 16)]
+    return {"two layers": layered_views(n=9, size=192, d_fg=0.6, d_bg=-1.4, bands=bands,
+                                        seed=3),
+            "thin stripes": layered_views(n=9, size=192, d_fg=0.5, d_bg=-1.5,
+                                          bands=stripes, seed=4)}
+
+
+def run_step(views: np.ndarray, how, shears) -> tuple[np.ndarray, float]:
+    """The disparity map of one step and its seconds."""
+    t0 = time.perf_counter()
+    if how is None:
+        n = views.shape[0]
+        c0 = max(0, (n - 5) // 2)
+        sub = np.ascontiguousarray(views[c0:c0 + min(n, 5), c0:c0 + min(n, 5)])
+        d = estimate(sub[None], float(views.shape[-1]), (1.0, 1.0), model="bcc")["disparity"]
+    else:
+        how = dict(how)
+        if how.pop("whole_lines", False):
+            how["subgrid"] = views.shape[0]
+        d = estimate_refocused(views, shears, select="lines", **how)["disparity"]
+    return d, time.perf_counter() - t0
+
+
+def study(scenes: dict, progress=print) -> list[dict]:
+    """One row per scene and step: ``scene, step, mse_x100, badpix_007, no_value_pct,
+    seconds``, and the shears found."""
+    rows = []
+    for name, (views, truth) in scenes.items():
+        shears, info = estimate_shear_range(views)
+        fin = truth[np.isfinite(truth)]
+        progress(f"{name}: {views.shape[0]}x{views.shape[1]} views of {views.shape[-1]}^2, "
+                 f"true disparity {fin.min():.2f} .. {fin.max():.2f}, coarse pass "
+                 f"{info['lo']:.2f} .. {info['hi']:.2f} -> shears {shears[0]} .. {shears[-1]}")
+        for label, how in STEPS:
+            d, secs = run_step(views, how, shears)
+            m = hci_metrics(d, truth)
+            rows.append({"scene": name, "step": label, "mse_x100": m["mse_x100"],
+                         "badpix_007": m["badpix_007"],
+                         "no_value_pct": 100.0 * m["n_nonfinite"] / max(m["n_pixels"], 1),
+                         "seconds": secs})
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--hci", nargs="*", default=[], help="HCI scene folders to add")
+    ap.add_argument("--cache", default="work/cube",
+                    help="where the cube light field is rendered (default work/cube)")
+    ap.add_argument("--no-cube", action="store_true", help="leave out the POV-Ray cube")
+    a = ap.parse_args(argv)
+    scenes = synthetic_scenes()
+    if not a.no_cube:
+        from gridflow.scenes.render import render_cube_lightfield
+
+        print("rendering the cube light field (POV-Ray, once per cache) ...", flush=True)
+        views, disp, _ = render_cube_lightfield(a.cache)
+        scenes["cube"] = (views, disp)
+    for path in a.hci:
+        from gridflow.hci import load_hci
+
+        data = load_hci(path)
+        scenes[str(path)] = (data.volume[0], data.truth["disparity"])
+    rows = study(scenes)
+    print("| scene | step | MSE x 100 | BadPix(0.07) % | no value % | s |")
+    print("|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['scene']} | {r['step']} | {r['mse_x100']:.3f} | {r['badpix_007']:.2f} | "
+              f"{r['no_value_pct']:.2f} | {r['seconds']:.1f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -10,7 +10,7 @@ PY     := $(BIN)/python
 STAMP  := $(VENV)/.installed
 
 .DEFAULT_GOAL := help
-.PHONY: help env test figures reproduce baseline bench mutants clean distclean povray
+.PHONY: help env test figures reproduce baseline bench mutants clean distclean povray peers-env
 
 help:
 	@echo "make figures   reproduce the paper's figures and result tables (results/)"
@@ -19,6 +19,7 @@ help:
 	@echo "make baseline  regenerate the stored error curves deliberately"
 	@echo "make bench     run the throughput benchmark"
 	@echo "make mutants   run the hand-written mutants against the tests (about 5 min)"
+	@echo "make peers-env set up depthy and plenpy (pinned) for gridflow peers --hci"
 	@echo "make clean     remove caches (never results of long runs)"
 
 # gridflow is installed in strict editable mode: a tree of links to the repository's files
@@ -116,6 +117,19 @@ results/leaf.csv $(FIGDIR)/fig_leaf.png &: $(LEAF_SRC) | $(STAMP) povray
 results/peers_depth.csv results/peers_motion.csv $(FIGDIR)/peers_depth.png &: $(CUBE_SRC) bench/peers.py generators/sinusoid.py | $(STAMP) povray
 	$(BIN)/gridflow peers --csv-depth results/peers_depth.csv --csv-motion results/peers_motion.csv --fig-dir $(FIGDIR)
 
+# depthy and plenpy, the Python light-field peers, in an environment of their own with the
+# versions they need (requirements-peers.lock); `gridflow peers --hci SCENE` runs them there.
+PEERS_VENV ?= .venv-peers
+peers-env: $(PEERS_VENV)/.done
+$(PEERS_VENV)/.done: requirements-peers.lock
+	@echo "setting up depthy and plenpy in $(PEERS_VENV) (pinned versions, once; about 30 s) ..."
+	@test -x $(PEERS_VENV)/bin/python || $(PYTHON) -m venv $(PEERS_VENV)
+	@$(PEERS_VENV)/bin/python -m pip install -q -c /dev/null -r requirements-peers.lock 2>&1 \
+	  | grep -v "^WARNING: Location" || true
+	@$(PEERS_VENV)/bin/python -c "import depthy.lightfield, plenpy.lightfields" 2>/dev/null \
+	  || { echo "depthy or plenpy does not import in $(PEERS_VENV) (see pip's output above)" >&2; exit 1; }
+	@touch $@
+
 # POV-Ray (Debian's povray) renders the cube; installed where missing, or one line says how.
 povray:
 	@command -v povray >/dev/null 2>&1 || { \
@@ -158,4 +172,4 @@ clean:
 	find . -name __pycache__ -not -path "./$(VENV)/*" -prune -exec rm -rf {} +
 
 distclean: clean
-	rm -rf $(VENV)
+	rm -rf $(VENV) $(PEERS_VENV)

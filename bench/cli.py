@@ -347,7 +347,7 @@ def cmd_peers(a) -> int:
     for p in r.written:
         print(f"wrote {p}")
     if a.hci:
-        desc, table = score_hci_scene(a.hci)
+        desc, table = score_hci_scene(a.hci, env=a.peers_env, progress=not a.no_progress)
         print(f"{desc}:")
         print(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
     return 0
@@ -486,6 +486,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write the cube light field as an HCI scene")
     p.add_argument("--hci", metavar="SCENE",
                    help="also score the depth methods on an HCI scene (printed only)")
+    p.add_argument("--peers-env", default=".venv-peers", metavar="VENV",
+                   help="with --hci: the environment depthy and plenpy run in (default "
+                        ".venv-peers, made by make peers-env); without it they are left "
+                        "out with a message")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=cmd_peers)
 

@@ -373,8 +373,71 @@ def run_peers(cache, *, csv_depth, csv_motion, fig_dir, write_hci=None,
     return PeersReport(label, table, motion, written)
 
 
-def score_hci_scene(folder) -> tuple[str, pd.DataFrame]:
-    """Every depth method on an HCI scene with truth (``gt_disp_lowres.pfm``), over the
+# the Python light-field packages run in an environment of their own (make peers-env)
+EXTERNAL_DEPTH = ("depthy", "plenpy")
+PEERS_ENV = ".venv-peers"
+
+
+def run_external(package: str, folder, d_gt=None, *, env=PEERS_ENV,
+                 timeout: float = 1800.0) -> dict:
+    """Run ``depthy`` or ``plenpy`` on the HCI scene ``folder`` in the environment ``env``
+    (its ``bin/python``; ``make peers-env``) through ``bench/peer_runner.py``.
+
+    Returns
+    -------
+    dict
+        ``method`` (package and version), ``seconds`` (the method's call, as the runner
+        timed it), ``wall`` (the whole subprocess: start, imports, reading the views),
+        ``disparity`` and, with ``d_gt``, :func:`hci_metrics`.
+    """
+    import json
+    import subprocess
+    import sys
+    import tempfile
+
+    from gridflow.errors import UsageError
+
+    py = Path(env) / "bin" / "python"
+    if not py.is_file():
+        raise UsageError(f"{package}: its environment {env} is missing (make peers-env)")
+    runner = Path(__file__).with_name("peer_runner.py")
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "d.npy"
+        t0 = time.perf_counter()
+        p = subprocess.run([str(py), str(runner), package, str(folder), str(out)],
+                           capture_output=True, text=True, timeout=timeout)
+        wall = time.perf_counter() - t0
+        if p.returncode != 0:
+            tail = (p.stderr or p.stdout).strip().splitlines()[-1:] or ["no output"]
+            raise RuntimeError(f"{package} failed in {env} (exit {p.returncode}): {tail[0]}")
+        info = json.loads(p.stdout.strip().splitlines()[-1])
+        d = np.load(out).astype(np.float64)
+    print(f"  {package} {info['version']}: {info['call']} ({info['seconds']:.1f} s)",
+          file=sys.stderr, flush=True)
+    r = {"method": f"{package} {info['version']}", "seconds": float(info["seconds"]),
+         "wall": wall, "disparity": d}
+    if d_gt is not None:
+        r.update(hci_metrics(d, d_gt))
+    return r
+
+
+def _gridflow_default(views, disp_range):
+    """What ``gridflow estimate SCENE`` does with no options: the stated range, else the
+    coarse pass's; line sub-grids, fill, median."""
+    from gridflow.estimator.lightfield import (estimate_refocused, estimate_shear_range,
+                                               stated_shears)
+
+    shears = stated_shears(disp_range)
+    if shears is None:
+        shears, _ = estimate_shear_range(views)
+    res = estimate_refocused(views, shears)
+    return res["disparity"], res["confidence"]
+
+
+def score_hci_scene(folder, *, env=PEERS_ENV, progress=True) -> tuple[str, pd.DataFrame]:
+    """Every depth method on an HCI scene with truth (``gt_disp_lowres.pfm``): gridflow's
+    default first (the command ``gridflow estimate SCENE`` runs), the peers depthy and
+    plenpy where their environment ``env`` exists, then gridflow's other choices over the
     scene's stated disparity range where ``parameters.cfg`` gives one; on more than 5 x 5
     views also the occlusion-aware methods on the central 5 x 5 alone (what the outer
     views add).
@@ -385,18 +448,38 @@ def score_hci_scene(folder) -> tuple[str, pd.DataFrame]:
     table : pandas.DataFrame
         One row per method and views used: :func:`hci_metrics` and ``seconds``.
     """
+    import sys
+
     from gridflow.estimator.lightfield import stated_shears
     from gridflow.hci import HCIError, load_hci
+
+    def say(text):
+        if progress:
+            print(text, file=sys.stderr, flush=True)
 
     lf = load_hci(folder)
     if "disparity" not in lf.truth:
         raise HCIError(f"{folder}: no gt_disp_lowres.pfm to score against")
     views, gt = lf.volume[0], lf.truth["disparity"]
     n = views.shape[0]
-    shifts = stated_shears((lf.meta.get("hci") or {}).get("disp_range"))
+    disp_range = (lf.meta.get("hci") or {}).get("disp_range")
+    shifts = stated_shears(disp_range)
     kw = {} if shifts is None else {"shifts": shifts}
     out = []
+    say(f"{folder}: gridflow's default ...")
+    t0 = time.perf_counter()
+    d, conf = _gridflow_default(views, disp_range)
+    out.append({"method": "gridflow (default)", "seconds": time.perf_counter() - t0,
+                **hci_metrics(d, gt), "views": f"{n}+{n}"})
+    if (Path(env) / "bin" / "python").is_file():
+        for pkg in EXTERNAL_DEPTH:
+            say(f"{folder}: {pkg} in {env} ...")
+            r = run_external(pkg, folder, gt, env=env)
+            out.append({**r, "views": f"{n}x{n}"})
+    else:
+        say(f"depthy, plenpy: not run ({env} is missing: make peers-env sets it up)")
     for m in DEPTH_METHODS:
+        say(f"{folder}: {m} ...")
         r = run_depth(m, views, gt, **(kw if m.startswith("gridflow_") else {}))
         used = (f"{n}x{n}" if m in ("gridflow_occlusion", "epi_st") else
                 f"{n}+{n}" if m == "gridflow_lines" else f"{min(5, n)}x{min(5, n)}")
@@ -405,7 +488,7 @@ def score_hci_scene(folder) -> tuple[str, pd.DataFrame]:
         for m in ("gridflow_occlusion", "gridflow_lines"):
             r = run_depth(m, views, gt, grid=5, **kw)
             out.append({**r, "views": "5x5" if m == "gridflow_occlusion" else "5+5"})
-    table = pd.DataFrame([{k: v for k, v in r.items() if k not in ("disparity", "confidence")}
-                          for r in out])
+    table = pd.DataFrame([{k: v for k, v in r.items()
+                           if k not in ("disparity", "confidence", "wall")} for r in out])
     desc = f"{folder} ({n}x{n} views{'; shears ' + str(list(kw['shifts'])) if kw else ''})"
     return desc, table

@@ -453,3 +453,43 @@ def test_wild_shears_and_ranges_are_refused_at_once(tmp_path, capsys):
         err = capsys.readouterr().err
         assert str(bad / "parameters.cfg") in err and match in err
         assert not (tmp_path / f"b{i}.npz").exists()
+
+
+def test_external_peer_plumbing(tmp_path, monkeypatch, capsys):
+    """``run_external`` runs a peer in its own environment and scores what it returns:
+    here a stand-in ``depthy`` package (its loader and ``epi_depth`` returning the truth
+    plus 0.05) on this interpreter; a missing environment and a failing peer are named."""
+    import os
+    import sys
+
+    from gridflow.bench.peers import run_external
+    from gridflow.errors import UsageError
+
+    views, truth = layered_views(size=48, band=(20, 30))
+    scene = tmp_path / "s"
+    write_hci(scene, views, disparity=truth)
+    fake = tmp_path / "site" / "depthy"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text("__version__ = '9.9'\n")
+    (fake / "misc.py").write_text(
+        "import numpy as np, imageio.v3 as iio\n"
+        "def load_img_file(p):\n    return iio.imread(p).astype(np.float32) / 255\n"
+        "def load_lf_arr(ps):\n    raise AssertionError('grey views take the other path')\n")
+    np.save(tmp_path / "truth.npy", truth)
+    (fake / "lightfield.py").write_text(
+        "import numpy as np\n"
+        f"def epi_depth(lf):\n    assert lf.shape == (9, 9, 48, 48, 1)\n"
+        f"    return np.load({str(tmp_path / 'truth.npy')!r}) + 0.05\n")
+    env = tmp_path / "env"
+    (env / "bin").mkdir(parents=True)
+    (env / "bin" / "python").write_text(f"#!/bin/sh\nexec {sys.executable} \"$@\"\n")
+    os.chmod(env / "bin" / "python", 0o755)
+    monkeypatch.setenv("PYTHONPATH", str(tmp_path / "site"))
+    r = run_external("depthy", scene, truth, env=env)
+    assert r["method"] == "depthy 9.9" and r["n_nonfinite"] == 0
+    assert r["badpix_007"] == 0.0 and r["badpix_003"] == 100.0
+    assert r["mse_x100"] == pytest.approx(100 * 0.05 ** 2, rel=1e-5)
+    with pytest.raises(RuntimeError, match="plenpy failed in .*No module named 'plenpy'"):
+        run_external("plenpy", scene, truth, env=env)
+    with pytest.raises(UsageError, match="make peers-env"):
+        run_external("depthy", scene, truth, env=tmp_path / "none")

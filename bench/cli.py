@@ -398,7 +398,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "('lines', the default: occlusions and thin structures), square "
                         "sub-grids ('occlusion'), or the shear nearest a coarse estimate "
                         "('coarse': fine periodic texture, where a wrong shear can "
-                        "alias); docs/model.md")
+                        "alias, and smooth surfaces without thin structures, where its "
+                        "wider window does better); docs/model.md")
     p.add_argument("--median", type=int, default=3, metavar="SIZE",
                    help="refocusing: a SIZE x SIZE median of the disparity after the choice "
                         "(default 3; 0: none): a pixel that disagrees with most of its "

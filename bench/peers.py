@@ -466,6 +466,7 @@ def score_hci_scene(folder, *, env=PEERS_ENV, progress=True) -> tuple[str, pd.Da
     shifts = stated_shears(disp_range)
     kw = {} if shifts is None else {"shifts": shifts}
     out = []
+    missing = ""
     say(f"{folder}: gridflow's default ...")
     t0 = time.perf_counter()
     d, conf = _gridflow_default(views, disp_range)
@@ -477,7 +478,8 @@ def score_hci_scene(folder, *, env=PEERS_ENV, progress=True) -> tuple[str, pd.Da
             r = run_external(pkg, folder, gt, env=env)
             out.append({**r, "views": f"{n}x{n}"})
     else:
-        say(f"depthy, plenpy: not run ({env} is missing: make peers-env sets it up)")
+        missing = f"depthy, plenpy: not run ({env} is missing: make peers-env sets it up)"
+        say(missing)
     for m in DEPTH_METHODS:
         say(f"{folder}: {m} ...")
         r = run_depth(m, views, gt, **(kw if m.startswith("gridflow_") else {}))
@@ -491,4 +493,6 @@ def score_hci_scene(folder, *, env=PEERS_ENV, progress=True) -> tuple[str, pd.Da
     table = pd.DataFrame([{k: v for k, v in r.items()
                            if k not in ("disparity", "confidence", "wall")} for r in out])
     desc = f"{folder} ({n}x{n} views{'; shears ' + str(list(kw['shifts'])) if kw else ''})"
+    if missing:
+        desc += f"; {missing}"
     return desc, table

@@ -187,25 +187,36 @@ def load_hci(folder, views: int | None = None) -> GridVolume:
     if use % 2 == 0 or not 3 <= use <= n:
         raise HCIError(f"views must be odd, at least 3 and at most the grid's {n}, got {views}")
     c0 = (n - use) // 2
-    images = []
+    chosen = [found[r * n + c] for r in range(c0, c0 + use) for c in range(c0, c0 + use)]
+    # a FIFO would block the read, a device (a link to /dev/zero) never end it
+    irregular = [p.name for p in chosen if not p.is_file()]
+    if irregular:
+        raise HCIError(f"{folder}: {len(irregular)} view(s) are not regular files, e.g. "
+                       f"{irregular[:3]}")
+    volume = None
+    first = first_kind = None
     try:
-        for r in range(c0, c0 + use):
-            row = []
-            for c in range(c0, c0 + use):
-                img, kind = _read_image(found[r * n + c])
-                row.append(img)
-            images.append(row)
+        for k, p in enumerate(chosen):
+            img, kind = _read_image(p)
+            if volume is None:
+                # the memory check after the first view, before the others are decoded
+                mem = physical_memory()
+                if mem is not None and use * use * img.size * 8 > mem // 2:
+                    raise HCIError(f"{folder}: {use}x{use} views of {img.shape[1]}x"
+                                   f"{img.shape[0]} need more than half the memory of "
+                                   "this machine")
+                volume = np.empty((1, use, use) + img.shape)
+                first, first_kind = p.name, kind
+            if img.shape != volume.shape[3:]:
+                raise HCIError(f"{p}: size {img.shape} differs from {first} "
+                               f"{volume.shape[3:]}")
+            if kind != first_kind:
+                raise HCIError(f"{p}: pixel type {kind} differs from {first} ({first_kind}): "
+                               "the views would be scaled differently")
+            volume[0, k // use, k % use] = img
     except LoaderError as exc:
         raise HCIError(str(exc)) from None
-    shapes = {im.shape for row in images for im in row}
-    if len(shapes) != 1:
-        raise HCIError(f"{folder}: views of different sizes {sorted(shapes)}")
-    H, W = shapes.pop()
-    mem = physical_memory()
-    if mem is not None and use * use * H * W * 8 > mem // 2:
-        raise HCIError(f"{folder}: {use}x{use} views of {W}x{H} need more than half the "
-                       "memory of this machine")
-    volume = np.stack([np.stack(row) for row in images])[None]
+    H, W = volume.shape[3:]
     meta = {"source": "hci", "folder": str(folder), "grid": [n, n], "views_used": use}
     geometry = None
     cfg = folder / "parameters.cfg"

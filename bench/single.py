@@ -381,10 +381,17 @@ def evaluate_input(estimate_path, truth_path) -> EvaluationReport:
     own = truth.pop("interior", None)
     if own is not None:
         interior = interior & own.astype(bool)
+    if not interior.any():
+        raise FileFormatError(f"{estimate_path}: no pixel to score (its interior"
+                              + (f" within the interior of {truth_path}" if own is not None
+                                 else "") + " is empty)")
     rows = evaluate(maps, truth, interior)
     if not rows:
         raise FileFormatError(f"{estimate_path} and {truth_path} share no quantity names")
     hci = None
     if "disparity" in maps and "disparity" in truth:
         hci = hci_metrics(maps["disparity"], truth["disparity"])
+        if hci["n_pixels"] == 0:
+            raise FileFormatError(f"{truth_path}: its disparity truth has no finite value "
+                                  "inside the benchmark's 15-pixel border")
     return EvaluationReport(meta.get("model", "?"), rows, hci, own is not None)

@@ -359,7 +359,9 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         conf = np.where(filled, np.nanmin(conf), conf)
     if median > 1 and np.isfinite(disp).any():
         disp = _median(disp, int(median))
-    res = {"disparity": disp, "shear": out["shear"], "model_error": err, "confidence": conf,
+    # the shear of a pixel without an estimate would read as a disparity: NaN there
+    shear_map = np.where(np.isfinite(disp), out["shear"], np.nan)
+    res = {"disparity": disp, "shear": shear_map, "model_error": err, "confidence": conf,
            "valid": valid, "filled": filled}
     if "coarse" in out:
         res["coarse"] = out["coarse"]

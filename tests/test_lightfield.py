@@ -4,6 +4,8 @@ The data are made here (a textured plane seen by a 2-D grid of parallel cameras,
 ray-plane intersection); the real HCI scene is never needed by the tests.
 """
 
+import os
+
 import numpy as np
 import pytest
 
@@ -493,3 +495,55 @@ def test_external_peer_plumbing(tmp_path, monkeypatch, capsys):
         run_external("plenpy", scene, truth, env=env)
     with pytest.raises(UsageError, match="make peers-env"):
         run_external("depthy", scene, truth, env=tmp_path / "none")
+
+
+def test_hci_views_that_are_not_plain_images_are_refused(tmp_path):
+    """A FIFO (which would block the read), a link to /dev/zero (a read without end) and
+    a 16-bit view among 8-bit ones (scaled by 65535 instead of 255) are refused, naming
+    the view, before any estimate."""
+    import imageio.v3 as iio
+
+    views, truth = layered_views(n=3, size=32, band=(10, 20))
+
+    def scene(name):
+        folder = tmp_path / name
+        write_hci(folder, views, disparity=truth)
+        return folder
+
+    fifo = scene("fifo")
+    (fifo / "input_Cam004.png").unlink()
+    os.mkfifo(fifo / "input_Cam004.png")
+    with pytest.raises(HCIError, match=r"not regular files, e.g. \['input_Cam004.png'\]"):
+        load_hci(fifo)
+    zero = scene("zero")
+    (zero / "input_Cam001.png").unlink()
+    os.symlink("/dev/zero", zero / "input_Cam001.png")
+    with pytest.raises(HCIError, match="input_Cam001.png"):
+        load_hci(zero)
+    mixed = scene("mixed")
+    img = iio.imread(mixed / "input_Cam002.png").astype(np.uint16) * 257
+    (mixed / "input_Cam002.png").write_bytes(iio.imwrite("<bytes>", img, extension=".png"))
+    with pytest.raises(HCIError, match=r"input_Cam002.png: pixel type uint16 differs from "
+                                       r"input_Cam000.png \(uint8\)"):
+        load_hci(mixed)
+
+
+def test_evaluate_refuses_what_it_cannot_score(tmp_path, capsys):
+    """An all-NaN disparity truth, or an estimate without interior pixels, is an error
+    naming the file, not exit 0 with NaN scores; with --no-fill the shear map is NaN where
+    nothing was estimated (it would read as a disparity)."""
+    from gridflow.bench.cli import main
+    from gridflow.io import load_estimate
+
+    views, truth = layered_views(n=5, size=48, band=(20, 30))
+    good, bad = tmp_path / "good", tmp_path / "nan"
+    write_hci(good, views, disparity=truth)
+    write_hci(bad, views, disparity=np.full_like(truth, np.nan))
+    out = tmp_path / "e.npz"
+    assert main(["estimate", str(good), "--no-fill", "--no-progress", "-o", str(out)]) == 0
+    maps, interior, _ = load_estimate(out)
+    none = ~np.isfinite(maps["disparity"])
+    assert none.any() and np.isnan(maps["shear"][none]).all()
+    assert np.isfinite(maps["shear"][~none]).all()
+    assert main(["evaluate", str(out), str(bad)]) == 2
+    assert f"{bad}: its disparity truth has no finite value" in capsys.readouterr().err

@@ -525,11 +525,21 @@ def main(argv=None) -> int:
         handler.setFormatter(logging.Formatter("gridflow: %(message)s"))
         log.addHandler(handler)
         log.setLevel(logging.INFO)
+    from .executors import Terminated, signals_raise
+
     try:
-        return a.func(a)
+        # SIGTERM raises like Ctrl-C, so that a file being written is removed (atomic
+        # writes) and the interruption reads as one line, not a traceback
+        with signals_raise():
+            return a.func(a)
     except _user_errors() as exc:
         print(f"gridflow {a.command}: error: {exc}", file=sys.stderr)
         return 2
+    except (KeyboardInterrupt, Terminated) as exc:
+        name = "SIGTERM" if isinstance(exc, Terminated) else "SIGINT"
+        print(f"gridflow {a.command}: interrupted ({name}); outputs already written are "
+              "complete, the one being written was not left behind", file=sys.stderr)
+        return 143 if name == "SIGTERM" else 130
 
 
 if __name__ == "__main__":

@@ -547,3 +547,46 @@ def test_evaluate_refuses_what_it_cannot_score(tmp_path, capsys):
     assert np.isfinite(maps["shear"][~none]).all()
     assert main(["evaluate", str(out), str(bad)]) == 2
     assert f"{bad}: its disparity truth has no finite value" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("sig, code, name", [("SIGINT", 130, "SIGINT"),
+                                             ("SIGTERM", 143, "SIGTERM")])
+def test_interrupted_estimate_leaves_no_temporary_and_one_line(tmp_path, capsys,
+                                                               monkeypatch, sig, code, name):
+    """A signal that arrives while ``gridflow estimate`` writes its output: the command
+    ends with one line (no traceback) and the exit status of the signal, and neither the
+    output nor its temporary file is left (SIGTERM is turned into an exception, so the
+    atomic write can clean up)."""
+    import signal
+
+    import gridflow.io as gio
+    from gridflow.bench.cli import main
+
+    views, truth = layered_views(n=5, size=48, band=(20, 30))
+    scene = tmp_path / "s"
+    write_hci(scene, views, disparity=truth)
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    real = gio.np.savez
+
+    def interrupted(fh, **arrays):
+        fh.write(b"PK partial")                   # half a file in the temporary
+        if sig == "SIGINT":
+            raise KeyboardInterrupt
+        os.kill(os.getpid(), signal.SIGTERM)      # the handler raises here
+        real(fh, **arrays)                        # never reached
+
+    def guard(signum, frame):                     # without the CLI's handler: a failure,
+        raise RuntimeError("SIGTERM reached the handler outside the command")  # not a kill
+
+    monkeypatch.setattr(gio.np, "savez", interrupted)
+    old = signal.signal(signal.SIGTERM, guard)
+    try:
+        assert main(["estimate", str(scene), "--no-progress", "-o",
+                     str(out_dir / "e.npz")]) == code
+        assert signal.getsignal(signal.SIGTERM) is guard         # the handler restored
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"interrupted ({name})" in err[0]
+    assert list(out_dir.iterdir()) == []

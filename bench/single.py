@@ -172,6 +172,12 @@ def estimate_input(path, output, *, models=None, settings: dict | None = None, v
                              if k in ("sigma", "window", "filters")})
     else:
         EstimatorSettings(**settings)           # bad settings fail before the volume loads
+    if views is not None:
+        from gridflow.hci import is_hci_scene
+
+        if not (Path(path).is_dir() and is_hci_scene(Path(path))):
+            raise UsageError(f"--views chooses the central views of an HCI scene; {path} is "
+                             "not one (a volume or camera-grid folder uses all its views)")
     if views is None:
         # all views where refocusing's sub-grids use the outer ones, else what the 5-tap
         # camera filters reach

@@ -330,6 +330,9 @@ def test_cli_refocused_light_field_refusals(tmp_path, capsys):
     assert "light field of one frame" in capsys.readouterr().err
     assert main(["estimate", str(scene), "--shears", "2", "1", "-o", str(tmp_path / "h.npz")]) == 2
     assert "MIN <= MAX" in capsys.readouterr().err
+    # --views chooses an HCI scene's views: refused, not ignored, on a volume
+    assert main(["estimate", str(vol), "--views", "3", "-o", str(tmp_path / "i.npz")]) == 2
+    assert "--views chooses the central views of an HCI scene" in capsys.readouterr().err
 
 
 def test_default_light_field_command_refocuses(tmp_path, capsys):

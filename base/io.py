@@ -29,8 +29,9 @@ import numpy as np
 from .errors import FileFormatError, GridflowError
 from .volume import GridVolume
 
-__all__ = ["save_volume", "load_volume", "save_estimate", "load_estimate", "atomic_write",
-           "check_output", "OutputError", "check_input_file"]
+__all__ = ["save_volume", "load_volume", "save_estimate", "save_estimates", "load_estimate",
+           "atomic_write", "atomic_write_set", "check_output", "OutputError",
+           "check_input_file"]
 
 
 class OutputError(GridflowError):
@@ -261,6 +262,84 @@ def save_estimate(path, est) -> None:
     arrays["meta"] = np.array(json.dumps({"model": est.model, "settings": est.settings}))
     with atomic_write(path) as fh:
         np.savez(fh, **arrays)
+
+
+def save_estimates(outputs: dict) -> None:
+    """Write several :class:`estimator.Estimate` as ``.npz`` files that replace their paths
+    together (:class:`atomic_write_set`): a failure part-way (a full disk) leaves none of
+    them changed, and two runs writing the same set leave one run's set, not a mix.
+
+    Parameters
+    ----------
+    outputs : dict of path to Estimate
+    """
+    paths = list(outputs)
+    with atomic_write_set(paths) as handles:
+        for fh, est in zip(handles, outputs.values()):
+            arrays = {k: np.asarray(v, np.float64) for k, v in est.maps.items()}
+            arrays["interior"] = est.interior
+            arrays["meta"] = np.array(json.dumps({"model": est.model,
+                                                  "settings": est.settings}))
+            np.savez(fh, **arrays)
+
+
+class atomic_write_set:
+    """Context manager yielding one file per path; all replace their paths only when the
+    block succeeds for all of them.
+
+    Each content goes to a temporary file beside its path (:class:`atomic_write`); on
+    success they are renamed over their paths while an exclusive lock (``flock``) is held
+    on the first path's folder, so that two processes writing the same set one after the
+    other leave the later one's set whole.  On any failure every temporary file is removed
+    and no path is touched.
+    """
+
+    def __init__(self, paths, mode: str = "wb"):
+        self.writers = [atomic_write(p, mode) for p in paths]
+
+    def __enter__(self):
+        self.handles = []
+        try:
+            for w in self.writers:
+                self.handles.append(w.__enter__())
+        except BaseException:
+            self._discard()
+            raise
+        return self.handles
+
+    def _discard(self):
+        for w in self.writers[:len(self.handles)]:
+            try:
+                w.fh.close()
+            finally:
+                _unlink(w.tmp)
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is not None:
+            self._discard()
+            return False
+        import fcntl
+
+        try:
+            for w in self.writers:
+                w.fh.close()
+        except BaseException:
+            self._discard()
+            raise
+        fd = os.open(self.writers[0].path.parent, os.O_RDONLY)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            umask = os.umask(0)
+            os.umask(umask)
+            for w in self.writers:
+                os.chmod(w.tmp, 0o666 & ~umask)
+                os.replace(w.tmp, w.path)
+        except BaseException:
+            self._discard()
+            raise
+        finally:
+            os.close(fd)            # releases the lock
+        return False
 
 
 def load_estimate(path) -> tuple[dict[str, np.ndarray], np.ndarray, dict]:

@@ -26,7 +26,8 @@ from gridflow.estimator import Estimate, EstimatorSettings, estimate_models
 from gridflow.estimator.lightfield import (SELECT_DEFAULTS, SELECTS, check_shears,
                                           estimate_refocused, stated_shears)
 from gridflow.estimator.settings import InputError
-from gridflow.io import check_output, load_estimate, load_volume, save_estimate, save_volume
+from gridflow.io import (check_output, load_estimate, load_volume, save_estimate,
+                         save_estimates, save_volume)
 
 from .metrics import evaluate, hci_metrics
 
@@ -217,7 +218,10 @@ def estimate_input(path, output, *, models=None, settings: dict | None = None, v
 
             est.maps["Z"] = depth_from_disparity(est.maps["disparity"], geometry)
             est.settings["Z_units"] = "m (HCI geometry)"
-        save_estimate(outputs[m], est)
+    # all outputs or none: a failure part-way (a full disk) or a second run writing the
+    # same names leaves no mixed set
+    save_estimates({outputs[m]: est for m, est in ests.items()})
+    for m, est in ests.items():
         n_ok = int(np.isfinite(est["Z"][est.interior]).sum())
         report.lines.append(f"wrote {outputs[m]}: model {m}, {n_ok}/"
                             f"{int(est.interior.sum())} interior pixels valid")

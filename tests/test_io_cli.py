@@ -132,3 +132,41 @@ def test_cli_errors_are_clear(tmp_path, capsys):
     assert not (tmp_path / "e.npz").exists()
     assert main(["generate", "--a1", "500", "-o", str(tmp_path / "x.npz")]) == 2
     assert "exponent" in capsys.readouterr().err
+
+
+def test_model_all_outputs_replace_as_a_set(tmp_path, monkeypatch, capsys):
+    """``--model all`` writes its three outputs as a set: a failure at the second (a full
+    disk) leaves the outputs of an earlier run unchanged and no temporary file; the
+    successful rerun replaces all three."""
+    import errno
+
+    import gridflow.io as gio
+    from gridflow.bench.cli import main
+
+    vol = tmp_path / "v.npz"
+    assert main(["generate", "--height", "48", "--width", "48", "-o", str(vol)]) == 0
+    out = tmp_path / "out"
+    out.mkdir()
+    names = [f"e_{m}.npz" for m in ("bcc", "hf", "full")]
+    for n in names:
+        (out / n).write_bytes(b"earlier run")
+    real = gio.np.savez
+    calls = []
+
+    def full_disk(fh, **arrays):
+        calls.append(1)
+        if len(calls) == 2:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real(fh, **arrays)
+
+    monkeypatch.setattr(gio.np, "savez", full_disk)
+    assert main(["estimate", str(vol), "--model", "all", "--sigma", "2", "--window", "9",
+                 "-o", str(out / "e.npz")]) == 2
+    assert "No space left on device" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == sorted(names)       # no temporaries
+    assert all((out / n).read_bytes() == b"earlier run" for n in names)
+    monkeypatch.setattr(gio.np, "savez", real)
+    assert main(["estimate", str(vol), "--model", "all", "--sigma", "2", "--window", "9",
+                 "-o", str(out / "e.npz")]) == 0
+    assert sorted(p.name for p in out.iterdir()) == sorted(names)
+    assert all((out / n).read_bytes()[:2] == b"PK" for n in names)

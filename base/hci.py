@@ -24,6 +24,7 @@ linearised).
 from __future__ import annotations
 
 import configparser
+import os
 import re
 from pathlib import Path
 
@@ -246,6 +247,12 @@ def load_hci(folder, views: int | None = None) -> GridVolume:
                       principal_point=((W - 1) / 2.0, (H - 1) / 2.0), truth=truth, meta=meta)
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
               parameters: dict | None = None) -> list[Path]:
     """Write a light field in the HCI layout (for other tools).
@@ -253,7 +260,9 @@ def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
     Parameters
     ----------
     folder : path
-        Created if needed; existing ``input_Cam*.png`` files are not overwritten.
+        Created if needed; existing ``input_Cam*.png`` files are not overwritten.  The
+        scene is written to a temporary folder beside it first and moved into place by
+        renames, so a failure part-way (a full disk) leaves no partial scene.
     views : ndarray, shape (n, n, H, W)
         Intensities in [0, 1] (clipped), written as 8-bit grey PNGs; n odd.
     disparity : ndarray, shape (H, W), optional
@@ -266,34 +275,50 @@ def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
     list of Path
         The files written.
     """
-    import imageio.v3 as iio
+    import shutil
+    import tempfile
 
-    from .io import atomic_write
+    import imageio.v3 as iio
 
     folder = Path(folder)
     v = np.asarray(views, dtype=float)
     if v.ndim != 4 or v.shape[0] != v.shape[1] or v.shape[0] % 2 == 0:
         raise HCIError(f"views must have shape (n, n, H, W) with n odd, got {v.shape}")
-    folder.mkdir(parents=True, exist_ok=True)
     n = v.shape[0]
-    targets = [folder / f"input_Cam{i:03d}.png" for i in range(n * n)]
-    clash = [p for p in targets if p.exists()]
+    names = [f"input_Cam{i:03d}.png" for i in range(n * n)]
+    if folder.exists() and not folder.is_dir():
+        raise FileExistsError(f"{folder}: exists and is not a folder")
+    clash = [folder / nm for nm in names if (folder / nm).exists()]
     if clash:
         raise FileExistsError(f"{clash[0]}: exists; write the scene into an empty folder")
-    written = []
-    for i, p in enumerate(targets):
-        img = np.round(np.clip(v[i // n, i % n], 0.0, 1.0) * 255).astype(np.uint8)
-        with atomic_write(p) as fh:
-            fh.write(iio.imwrite("<bytes>", img, extension=".png"))
-        written.append(p)
-    if disparity is not None:
-        write_pfm(folder / "gt_disp_lowres.pfm", disparity)
-        written.append(folder / "gt_disp_lowres.pfm")
-    if parameters:
-        cp = configparser.ConfigParser()
-        for sec, kv in parameters.items():
-            cp[sec] = {k: str(val) for k, val in kv.items()}
-        with atomic_write(folder / "parameters.cfg", "w") as fh:
-            cp.write(fh)
-        written.append(folder / "parameters.cfg")
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    # the whole scene goes to a temporary folder beside the target first, then into
+    # place by renames: a failure part-way (a full disk) leaves no partial scene
+    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
+    try:
+        files = []
+        for i, nm in enumerate(names):
+            img = np.round(np.clip(v[i // n, i % n], 0.0, 1.0) * 255).astype(np.uint8)
+            (tmp / nm).write_bytes(iio.imwrite("<bytes>", img, extension=".png"))
+            files.append(nm)
+        if disparity is not None:
+            write_pfm(tmp / "gt_disp_lowres.pfm", disparity)
+            files.append("gt_disp_lowres.pfm")
+        if parameters:
+            cp = configparser.ConfigParser()
+            for sec, kv in parameters.items():
+                cp[sec] = {k: str(val) for k, val in kv.items()}
+            with open(tmp / "parameters.cfg", "w") as fh:
+                cp.write(fh)
+            files.append("parameters.cfg")
+        os.chmod(tmp, 0o777 & ~_umask())
+        if not folder.exists():
+            os.rename(tmp, folder)
+        else:
+            for nm in files:
+                os.replace(tmp / nm, folder / nm)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    written = [folder / nm for nm in files]
     return written

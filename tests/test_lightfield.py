@@ -593,3 +593,30 @@ def test_interrupted_estimate_leaves_no_temporary_and_one_line(tmp_path, capsys,
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"interrupted ({name})" in err[0]
     assert list(out_dir.iterdir()) == []
+
+
+def test_write_hci_leaves_no_partial_scene(tmp_path, monkeypatch):
+    """A failure part-way through writing an HCI scene (a full disk at the 4th view)
+    leaves neither the scene folder nor a temporary one; the rerun writes it whole."""
+    import errno
+
+    import imageio.v3 as iio
+
+    views, truth = layered_views(n=3, size=32, band=(10, 20))
+    real = iio.imwrite
+    calls = []
+
+    def full_disk(*args, **kw):
+        calls.append(1)
+        if len(calls) == 4:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(*args, **kw)
+
+    monkeypatch.setattr(iio, "imwrite", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        write_hci(tmp_path / "scene", views, disparity=truth)
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.setattr(iio, "imwrite", real)
+    files = write_hci(tmp_path / "scene", views, disparity=truth)
+    assert len(files) == 10 and [p.name for p in tmp_path.iterdir()] == ["scene"]
+    np.testing.assert_array_equal(load_hci(tmp_path / "scene").truth["disparity"], truth)

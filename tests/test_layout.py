@@ -350,3 +350,22 @@ def test_the_graph_checker_finds_cycles_and_upward_imports(tmp_path):
     assert graph["gridflow.bench.sweep"] == {"gridflow.estimator.core"}
     assert cycles(graph) == [["gridflow.estimator._fast", "gridflow.estimator.core"]]
     assert upward_edges(graph) == ["gridflow.estimator.models -> gridflow.bench.sweep"]
+
+
+def test_every_mutant_still_applies(monkeypatch):
+    """Each hand-written mutant of ``make mutants`` names text found exactly once in its
+    file, so that a refactor cannot retire a mutant (and the bug it stands for) without a
+    failing test here; ``tests/mutation.py`` refuses to run a stale list."""
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    name = "gridflow_mutation_list"
+    spec = importlib.util.spec_from_file_location(name, root / "tests" / "mutation.py")
+    mod = importlib.util.module_from_spec(spec)
+    # dataclasses look their module up in sys.modules
+    monkeypatch.setitem(__import__("sys").modules, name, mod)
+    spec.loader.exec_module(mod)
+    stale = [m.id for m in mod.MUTANTS if (root / m.file).read_text().count(m.old) != 1]
+    assert not stale, f"mutants whose text is not found exactly once: {stale}"
+    assert len({m.id for m in mod.MUTANTS}) == len(mod.MUTANTS)

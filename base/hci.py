@@ -247,12 +247,6 @@ def load_hci(folder, views: int | None = None) -> GridVolume:
                       principal_point=((W - 1) / 2.0, (H - 1) / 2.0), truth=truth, meta=meta)
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
               parameters: dict | None = None) -> list[Path]:
     """Write a light field in the HCI layout (for other tools).
@@ -279,6 +273,8 @@ def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
     import tempfile
 
     import imageio.v3 as iio
+
+    from .io import current_umask
 
     folder = Path(folder)
     v = np.asarray(views, dtype=float)
@@ -311,7 +307,7 @@ def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
             with open(tmp / "parameters.cfg", "w") as fh:
                 cp.write(fh)
             files.append("parameters.cfg")
-        os.chmod(tmp, 0o777 & ~_umask())
+        os.chmod(tmp, 0o777 & ~current_umask())
         if not folder.exists():
             os.rename(tmp, folder)
         else:

@@ -103,6 +103,13 @@ def check_input_file(path, what: str = "input") -> Path:
     return path
 
 
+def current_umask() -> int:
+    """The process's umask (reading it means setting it: set back at once)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 class atomic_write:
     """Context manager yielding a file whose content replaces ``path`` on success.
 
@@ -140,9 +147,7 @@ class atomic_write:
             self.fh.close()
             if exc_type is None:
                 # mkstemp makes the file private (0600); give it the usual umask permissions
-                umask = os.umask(0)
-                os.umask(umask)
-                os.chmod(self.tmp, 0o666 & ~umask)
+                os.chmod(self.tmp, 0o666 & ~current_umask())
                 os.replace(self.tmp, self.path)
                 return False
         except BaseException:
@@ -255,13 +260,18 @@ def _meta(z, path) -> dict:
     return meta
 
 
-def save_estimate(path, est) -> None:
-    """Write an :class:`estimator.Estimate` as an estimate ``.npz``."""
+def _estimate_arrays(est) -> dict:
+    """The arrays of an estimate ``.npz``: the maps, ``interior`` and ``meta`` (JSON)."""
     arrays = {k: np.asarray(v, np.float64) for k, v in est.maps.items()}
     arrays["interior"] = est.interior
     arrays["meta"] = np.array(json.dumps({"model": est.model, "settings": est.settings}))
+    return arrays
+
+
+def save_estimate(path, est) -> None:
+    """Write an :class:`estimator.Estimate` as an estimate ``.npz``."""
     with atomic_write(path) as fh:
-        np.savez(fh, **arrays)
+        np.savez(fh, **_estimate_arrays(est))
 
 
 def save_estimates(outputs: dict) -> None:
@@ -276,11 +286,7 @@ def save_estimates(outputs: dict) -> None:
     paths = list(outputs)
     with atomic_write_set(paths) as handles:
         for fh, est in zip(handles, outputs.values()):
-            arrays = {k: np.asarray(v, np.float64) for k, v in est.maps.items()}
-            arrays["interior"] = est.interior
-            arrays["meta"] = np.array(json.dumps({"model": est.model,
-                                                  "settings": est.settings}))
-            np.savez(fh, **arrays)
+            np.savez(fh, **_estimate_arrays(est))
 
 
 class atomic_write_set:
@@ -329,10 +335,9 @@ class atomic_write_set:
         fd = os.open(self.writers[0].path.parent, os.O_RDONLY)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX)
-            umask = os.umask(0)
-            os.umask(umask)
+            mode = 0o666 & ~current_umask()
             for w in self.writers:
-                os.chmod(w.tmp, 0o666 & ~umask)
+                os.chmod(w.tmp, mode)
                 os.replace(w.tmp, w.path)
         except BaseException:
             self._discard()

@@ -166,13 +166,11 @@ def estimate_input(path, output, *, models=None, settings: dict | None = None, v
     """
     settings = {k: v for k, v in (settings or {}).items() if v is not None}
     select = SELECTS[0] if select is None else select
-    if shears == "none":
-        shears = ()
-    if shears != ():
-        EstimatorSettings(**{k: v for k, v in settings.items()
-                             if k in ("sigma", "window", "filters")})
-    else:
-        EstimatorSettings(**settings)           # bad settings fail before the volume loads
+    single_pass = shears == "none"
+    # bad settings fail before the volume loads (refocusing uses three of them)
+    EstimatorSettings(**(settings if single_pass else
+                         {k: v for k, v in settings.items()
+                          if k in ("sigma", "window", "filters")}))
     if views is not None:
         from gridflow.hci import is_hci_scene
 
@@ -182,11 +180,10 @@ def estimate_input(path, output, *, models=None, settings: dict | None = None, v
     if views is None:
         # all views where refocusing's sub-grids use the outer ones, else what the 5-tap
         # camera filters reach
-        views = 5 if (shears == () or select == "coarse") else None
+        views = 5 if (single_pass or select == "coarse") else None
     data = load_input(path, views=views)
     T, gr, gc = data.volume.shape[:3]
-    refocus = shears != () and (shears is not None or (T == 1 and gr == gc and gr % 2 == 1
-                                                        and gr >= 3))
+    refocus = not single_pass and (shears is not None or (T == 1 and _square(gr, gc)))
     notes = []
     if shears is None and not refocus and T == 1:
         notes.append(f"not refocused: {path} is a {gr}x{gc} grid (refocusing needs a square "
@@ -232,6 +229,11 @@ def estimate_input(path, output, *, models=None, settings: dict | None = None, v
     return report
 
 
+def _square(rows: int, cols: int) -> bool:
+    """A grid refocusing can use: square, with an odd number of views, at least 3."""
+    return rows == cols and rows % 2 == 1 and rows >= 3
+
+
 def _views_used(n: int, select: str) -> str:
     """Which of an n x n grid's views a refocusing choice reads (its default sub-grids)."""
     if select == "lines":
@@ -268,9 +270,9 @@ def _estimate_refocused(path, data, output, models, settings, shears, select,
                          f"field of one frame ({path}) is refocused (--shears none: the "
                          "single pass)")
     views = data.volume[0]
-    if views.shape[0] != views.shape[1] or views.shape[0] % 2 == 0:
-        raise UsageError(f"--shears needs a square grid with an odd number of views, {path} "
-                         f"has {views.shape[0]}x{views.shape[1]}")
+    if not _square(*views.shape[:2]):
+        raise UsageError(f"--shears needs a square grid with an odd number of views (at "
+                         f"least 3), {path} has {views.shape[0]}x{views.shape[1]}")
     n = views.shape[0]
     geometry = data.meta.get("hci")
     filters = settings.get("filters", "matched5")

@@ -78,10 +78,9 @@ def check_shears(shears, n: int, H: int, W: int, what: str = "shears") -> None:
     >= min(H, W) / 2`` px no pixel has all its views, so nothing could be estimated
     (and sweeping them would only cost time)."""
     reach = max(1, (min(H, W) // 2 - 1) // max(1, n // 2))
-    if isinstance(shears, range):       # its ends without spelling it out
-        lo, hi = (shears[0], shears[-1]) if shears.step > 0 else (shears[-1], shears[0])
-    else:
-        lo, hi = min(shears), max(shears)
+    # a range by its ends, without spelling it out
+    ends = (shears[0], shears[-1]) if isinstance(shears, range) else shears
+    lo, hi = min(ends), max(ends)
     if max(abs(lo), abs(hi)) > reach:
         raise InputError(f"{what} {lo} .. {hi}: beyond +-{reach} px per view a {n}x{n} grid "
                          f"of {H}x{W} views moves every pixel's outer views out of the "
@@ -324,12 +323,13 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     v = np.asarray(views, dtype=np.float64)
     if v.ndim != 4 or v.shape[0] != v.shape[1] or v.shape[0] % 2 == 0:
         raise InputError(f"views must have shape (n, n, H, W) with n odd, got {v.shape}")
-    if isinstance(shifts, range) and len(shifts):
+    if not isinstance(shifts, range):
+        shifts = list(shifts)
+    if len(shifts):                     # before a range is spelt out
         check_shears(shifts, v.shape[0], *v.shape[-2:], what="shifts")
     shifts = [int(s) for s in shifts]
     if not shifts or len(set(shifts)) != len(shifts):
         raise InputError(f"shifts must be distinct integers, got {shifts}")
-    check_shears(shifts, v.shape[0], *v.shape[-2:], what="shifts")
     if select not in SELECT_DEFAULTS:
         raise InputError(f"select must be one of {sorted(SELECT_DEFAULTS)}, got {select!r}")
     n = v.shape[0]

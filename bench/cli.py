@@ -71,6 +71,9 @@ def _add_estimator_args(p: argparse.ArgumentParser) -> None:
                    help=f"implementation (same results; default {DEFAULTS['method']})")
     g.add_argument("--no-slant-correction", action="store_true",
                    help="read U_Z as the paper does (no slant-motion correction)")
+    g.add_argument("--no-zoom-correction", action="store_true",
+                   help="read the data rows as the paper does (no zoom-blur correction; "
+                        "docs/model.md)")
     g.add_argument("--combine", choices=COMBINE, default=None,
                    help="how the two estimates of v, z_x, z_y, u_z are combined "
                         f"(default {DEFAULTS['combine']})")
@@ -97,6 +100,8 @@ def _estimator_settings(a) -> dict:
              window=a.window)
     if a.no_slant_correction:
         s["slant_correction"] = False
+    if a.no_zoom_correction:
+        s["zoom_correction"] = False
     return {k: v for k, v in s.items() if v is not None}
 
 

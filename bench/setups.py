@@ -8,18 +8,21 @@ brightness errors are measured against.  A *setup* names one complete choice:
 ``gridflow``
     gridflow's most accurate choices (the defaults of :class:`SinusoidParams` and
     :class:`EstimatorSettings`): sum texture, 0.5 px disparity, 192² images, Ω over ±2
-    frames, ``matched5`` filters, inverse-variance combination, brightness errors against
-    the local truth ``a + a_x X``.  Use it to learn what the method can do.
+    frames, ``matched5`` filters, inverse-variance combination, the zoom-blur
+    correction, brightness errors against the local truth ``a + a_x X``.  Use it to learn
+    what the method can do.
 ``paper``
     a reading of the paper's unstated parameters chosen to bring its observations about:
     product texture, "amplitude 1" read as peak-to-peak (``amplitude = 0.5``), 1 px
     disparity between neighbouring cameras, 160² images, Ω over ±1 frame, plain averaging
-    of the two estimates of ``v, z_x, z_y, u_z``, brightness errors against the global
-    value ``a``; filters as gridflow's.  The paper combines the two estimates "according
-    to their error estimates" after a decorrelating rotation it does not give; read as
-    equal weights, its noise and brightness-constancy observations hold (7, 10), read as
-    gridflow's inverse-variance weights they do not (``docs/reproduction.md``).  Its calibration is measured in ``docs/reproduction.md`` (*The two
-    setups*).  Use it to compare with the paper's figures.
+    of the two estimates of ``v, z_x, z_y, u_z``, the data rows without the zoom-blur
+    correction (the paper has none), brightness errors against the global value ``a``;
+    filters as gridflow's.  The paper combines the two estimates "according to their
+    error estimates" after a decorrelating rotation it does not give; read as equal
+    weights, its noise and brightness-constancy observations hold (7, 10), read as
+    gridflow's inverse-variance weights they do not (``docs/reproduction.md``).  Its
+    calibration is measured in ``docs/reproduction.md`` (*The two setups*).  Use it to
+    compare with the paper's figures.
 
 A sweep spec selects one with ``[sweep] setup = "paper"``; its own ``[base]`` and
 ``[estimator]`` entries override the setup's.
@@ -65,7 +68,7 @@ SETUPS = {
                  "observations hold",
         base={"texture": "product", "amplitude": 0.5, "height": 160, "width": 160,
               "spacing": (0.1, 0.1)},
-        estimator={"temporal_radius": 1, "combine": "mean"},
+        estimator={"temporal_radius": 1, "combine": "mean", "zoom_correction": False},
         brightness_reference="global"),
 }
 

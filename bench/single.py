@@ -118,6 +118,7 @@ class EstimateReport:
 # light field is refocused, instead of being ignored
 _SINGLE_PASS_ONLY = {"temporal_radius": "--temporal-radius", "ref_frame": "--ref-frame",
                      "method": "--method", "slant_correction": "--no-slant-correction",
+                     "zoom_correction": "--no-zoom-correction",
                      "combine": "--combine", "motion": "--motion"}
 
 
@@ -264,7 +265,7 @@ def _estimate_refocused(path, data, output, models, settings, shears, select,
                          f"--model {','.join(models)} (--shears none: the single pass)")
     given = [flag for key, flag in _SINGLE_PASS_ONLY.items() if key in settings
              and not (key == "motion" and settings[key] == "translation")
-             and not (key == "slant_correction" and settings[key])]
+             and not (key in ("slant_correction", "zoom_correction") and settings[key])]
     if given:
         raise UsageError(f"{', '.join(given)}: the estimator's single pass only; a light "
                          f"field of one frame ({path}) is refocused (--shears none: the "

@@ -112,7 +112,7 @@ class Backend:
 
     def signals(self, volume: np.ndarray, plan: sig.SignalPlan, rows: slice) -> dict:
         ct = sig.temporal_taps(sig.camera_sums(volume, plan, rows), plan)
-        jobs = sig.spatial_jobs(ct, plan.spatial)
+        jobs = sig.spatial_jobs(ct, plan.spatial, plan.extra)
         del ct
         from concurrent.futures import ThreadPoolExecutor
 
@@ -198,7 +198,7 @@ class NumbaBackend(Backend):
         ct = sig.temporal_taps(sums, plan)
         del sums
         return {k: self._kernels.spatial_filter(a, kx, ky)
-                for k, (a, kx, ky) in sig.spatial_jobs(ct, plan.spatial).items()}
+                for k, (a, kx, ky) in sig.spatial_jobs(ct, plan.spatial, plan.extra).items()}
 
     def tensor(self, signals: dict, plan: TensorPlan) -> PackedTensor:
         from .spectral import structure_tensor_fft

@@ -18,11 +18,11 @@ import numpy as np
 from .backends import TensorPlan, select_backend
 from .disentangle import disentangle
 from .filters import FilterPair, get_filter_pair
-from .models import MODELS, Model, covering_rows, get_model
+from .models import MODELS, ZOOM_ROW_SIGNALS, Model, covering_rows, get_model, zoom_rows
 from .result import Estimate
 from .settings import EstimatorSettings, InputError
 from .signals import SignalPlan, signal_plan
-from .tensor import gaussian_moment_kernels
+from .tensor import gaussian_moment_kernels, zoom_corrected
 
 __all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models"]
 
@@ -80,9 +80,9 @@ class Plan:
         """The frames of the temporal window."""
         return np.arange(self.k_ref - self.R_t, self.k_ref + self.R_t + 1)
 
-    def signal_plan(self) -> SignalPlan:
+    def signal_plan(self, extra: tuple[str, ...] = ()) -> SignalPlan:
         return signal_plan(self.volume.shape, self.frames, self.cam_x, self.cam_y, self.time,
-                           self.spatial, scale=self.scale)
+                           self.spatial, scale=self.scale, extra=extra)
 
 
 def _check_volume(volume, backend) -> tuple[np.ndarray, float]:
@@ -305,15 +305,19 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     mdl: dict[str, Model] = {m: get_model(m, plan.grid_dims, plan.static, s.motion)
                              for m in models}
     rows = covering_rows(mdl.values())
+    # the zoom-blur correction: J over the rows and their correction rows (J_ext), then
+    # each corrected row as the sum of the two (tensor.zoom_corrected)
+    ext = zoom_rows(rows) if s.zoom_correction else rows
+    extra = tuple(dict.fromkeys(ZOOM_ROW_SIGNALS[r][0] for r in ext[len(rows):]))
     vol = plan.volume
     T, Sy, Sx, H, W = vol.shape
     halo = plan.halo
-    n = len(rows)
+    n = len(ext)
     # J of a band takes rows * W * n^2 * 8 bytes; bound it (and the FFT work arrays) to
     # ~512 MB, so memory does not grow with the image.
     band = s.band_rows or max(16, int(512e6 // (W * n * n * 8)))
-    splan = plan.signal_plan()
-    tplan = TensorPlan(tvals=plan.frames - plan.k_ref, rows=rows,
+    splan = plan.signal_plan(extra)
+    tplan = TensorPlan(tvals=plan.frames - plan.k_ref, rows=ext,
                        kernels=gaussian_moment_kernels(s.sigma, s.window),
                        radius=s.window // 2, spatial_radius=plan.spatial.radius,
                        cols=slice(halo, W - halo))
@@ -342,6 +346,8 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         signals = backend.signals(vol, splan, slice(r0 - halo, r1 + halo))
         J = backend.tensor(signals, tplan)                # the band's interior pixels
         del signals
+        if ext != rows:
+            J = zoom_corrected(J, rows)
         yy, xx = np.meshgrid(np.arange(r0, r1), cols, indexing="ij")
         x0 = (xx - plan.cx).ravel().astype(float)
         y0 = (yy - plan.cy).ravel().astype(float)

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["ROWS", "ALL_ROWS", "MODELS", "MOTIONS", "BRIGHTNESS_OUTPUTS", "Model",
+__all__ = ["ROWS", "ALL_ROWS", "ZOOM_ROWS", "ZOOM_ROW_SIGNALS", "zoom_rows", "MODELS", "MOTIONS", "BRIGHTNESS_OUTPUTS", "Model",
            "get_model", "covering_rows"]
 
 # name -> (base signal, temporal power, spatial monomial)
@@ -53,6 +53,26 @@ ROWS: dict[str, tuple[str, int, str]] = {
     "tIyDx": ("y", 1, "x"), "tIyDy": ("y", 1, "y"),
 }
 ALL_ROWS = tuple(ROWS)
+
+# The zoom-blur correction (docs/model.md, *The zoom blur*).  A row whose parameter is a
+# coefficient's rate of change across the image (a monomial Δx or Δy: slope, divergence,
+# brightness gradient) is, after the prefilter along that axis, the monomial times the
+# prefiltered signal *plus* the prefilter's first moment applied to the signal.  That
+# second part is a row of its own base signal (no monomial) whose parameter is the
+# corrected row's: the corrected row is their sum, J = T J_ext T^T.
+ZOOM_ROWS: dict[str, str] = {
+    "IxDx": "zIxDx", "IxDy": "zIxDy", "IyDx": "zIyDx", "IyDy": "zIyDy",
+    "IDx": "zIDx", "IDy": "zIDy", "tIDx": "ztIDx", "tIDy": "ztIDy",
+    "tIxDx": "ztIxDx", "tIxDy": "ztIxDy", "tIyDx": "ztIyDx", "tIyDy": "ztIyDy",
+}
+# their base signals (estimator.signals.ZOOM_SIGNALS makes them) and temporal powers
+ZOOM_ROW_SIGNALS: dict[str, tuple[str, int, str]] = {
+    "zIxDx": ("zxx", 0, ""), "zIxDy": ("zxy", 0, ""), "zIyDx": ("zyx", 0, ""),
+    "zIyDy": ("zyy", 0, ""), "zIDx": ("zIx", 0, ""), "zIDy": ("zIy", 0, ""),
+    "ztIDx": ("zIx", 1, ""), "ztIDy": ("zIy", 1, ""),
+    "ztIxDx": ("zxx", 1, ""), "ztIxDy": ("zxy", 1, ""), "ztIyDx": ("zyx", 1, ""),
+    "ztIyDy": ("zyy", 1, ""),
+}
 
 # Motion models: the geometric rows of d (the fixed rows I_sx, I_sy, I_t included) and
 # the quantities their parameters give.
@@ -170,3 +190,9 @@ def covering_rows(models) -> tuple[str, ...]:
     computed once for all of them (each model's J is a sub-block of it)."""
     used = {r for m in models for r in m.rows}
     return tuple(r for r in ALL_ROWS if r in used)
+
+
+def zoom_rows(rows: tuple[str, ...]) -> tuple[str, ...]:
+    """``rows`` followed by the zoom-blur correction rows of those that have one: the
+    rows of the tensor J_ext from which the corrected J is formed."""
+    return tuple(rows) + tuple(ZOOM_ROWS[r] for r in rows if r in ZOOM_ROWS)

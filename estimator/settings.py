@@ -62,6 +62,11 @@ class EstimatorSettings:
         baseline of ``bench/``).  See :mod:`estimator.backends`.
     slant_correction : bool
         Remove the slant-motion coupling from ``U_Z`` (see :mod:`estimator.disentangle`).
+    zoom_correction : bool
+        Remove the zoom blur: the prefilter's first moment, which turns a coefficient
+        varying across the image (divergence, slope, brightness gradient) into an
+        apparent brightness change or motion (``docs/model.md``, *The zoom blur*).  The
+        paper does not correct it (``False`` reads the data rows as the paper does).
     band_rows : int or None
         Output rows processed at a time (bounds memory); default from a 512 MB budget.
     combine : {"inverse_variance", "mean"}
@@ -81,6 +86,7 @@ class EstimatorSettings:
     ref_frame: int | None = None
     method: str = "fast"
     slant_correction: bool = True
+    zoom_correction: bool = True
     band_rows: int | None = None
     combine: str = "inverse_variance"
     motion: str = "translation"
@@ -102,9 +108,10 @@ class EstimatorSettings:
                 raise InputError(f"{name} must be a non-negative integer or None, got {v!r}")
         if self.method not in METHODS:
             raise InputError(f"method must be one of {METHODS}, got {self.method!r}")
-        if not isinstance(self.slant_correction, (bool, np.bool_)):
-            raise InputError(f"slant_correction must be true or false, got "
-                             f"{self.slant_correction!r}")
+        for name in ("slant_correction", "zoom_correction"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise InputError(f"{name} must be true or false, got "
+                                 f"{getattr(self, name)!r}")
         if self.combine not in COMBINE:
             raise InputError(f"combine must be one of {COMBINE}, got {self.combine!r}")
         if self.motion not in MOTIONS:

@@ -23,7 +23,15 @@ import numpy as np
 from .filters import FilterPair
 
 __all__ = ["SignalPlan", "signal_plan", "camera_sums", "temporal_taps", "spatial_jobs",
-           "separable"]
+           "separable", "ZOOM_SIGNALS"]
+
+# The zoom-blur correction's base signals (estimator.models.ZOOM_ROW_SIGNALS): the
+# prefilter's first moment along the axis of a row's monomial, applied to the row's
+# signal.  Along the derivative's own axis that is ``(o p) * ∂I``, given by the pair's
+# ``moment_derivative`` kernel; across it ``o p`` itself.  (kernel along x, along y), with
+# "p", "d" the pair, "o" its moment and "m" its moment derivative.
+ZOOM_SIGNALS = {"zxx": ("m", "p"), "zxy": ("d", "o"), "zyx": ("o", "d"),
+                "zyy": ("p", "m"), "zIx": ("o", "p"), "zIy": ("p", "o")}
 
 
 def _taps(kernel: np.ndarray, centre: int):
@@ -52,6 +60,8 @@ class SignalPlan:
         (derivative; absent without a time axis).
     spatial : FilterPair
         The x/y pair.
+    extra : tuple of str
+        The zoom-blur signals (keys of :data:`ZOOM_SIGNALS`) made besides the base ones.
     """
 
     needed: np.ndarray
@@ -61,10 +71,12 @@ class SignalPlan:
     combos: tuple[str, ...]
     taps: dict
     spatial: FilterPair
+    extra: tuple[str, ...] = ()
 
 
 def signal_plan(shape, frames: np.ndarray, cam_x: FilterPair, cam_y: FilterPair | None,
-                time: FilterPair | None, spatial: FilterPair, scale: float = 1.0) -> SignalPlan:
+                time: FilterPair | None, spatial: FilterPair, scale: float = 1.0,
+                extra: tuple[str, ...] = ()) -> SignalPlan:
     """The filtering of a volume of ``shape`` at its centre camera.
 
     Parameters
@@ -80,7 +92,12 @@ def signal_plan(shape, frames: np.ndarray, cam_x: FilterPair, cam_y: FilterPair 
     spatial : FilterPair
     scale : float
         Factor applied to the intensities (folded into the camera weights).
+    extra : tuple of str
+        Zoom-blur signals to make (keys of :data:`ZOOM_SIGNALS`).
     """
+    unknown = [e for e in extra if e not in ZOOM_SIGNALS]
+    if unknown:
+        raise ValueError(f"unknown zoom-blur signals {unknown}; expected keys of ZOOM_SIGNALS")
     T, Sy, Sx, H, W = shape
     jc, ic = (Sx - 1) // 2, (Sy - 1) // 2
     ys = [(ic, 1.0)] if cam_y is None else _taps(cam_y.prefilter, ic)
@@ -116,7 +133,7 @@ def signal_plan(shape, frames: np.ndarray, cam_x: FilterPair, cam_y: FilterPair 
         taps["d"] = along_t(time.derivative)
     return SignalPlan(np.asarray(needed, dtype=np.int64), iy[0], ix[0],
                       np.ascontiguousarray(np.stack(list(combos.values()))),
-                      tuple(combos), taps, spatial)
+                      tuple(combos), taps, spatial, tuple(extra))
 
 
 def camera_sums(volume: np.ndarray, plan: SignalPlan, rows: slice) -> np.ndarray:
@@ -173,7 +190,8 @@ def temporal_taps(sums: np.ndarray, plan: SignalPlan) -> dict[str, np.ndarray]:
     return out
 
 
-def spatial_jobs(ct: dict[str, np.ndarray], spatial: FilterPair) -> dict[str, tuple]:
+def spatial_jobs(ct: dict[str, np.ndarray], spatial: FilterPair,
+                 extra: tuple[str, ...] = ()) -> dict[str, tuple]:
     """The x/y filtering that gives each base signal of the data rows.
 
     Parameters
@@ -181,11 +199,14 @@ def spatial_jobs(ct: dict[str, np.ndarray], spatial: FilterPair) -> dict[str, tu
     ct : dict of str to ndarray, each shape (F, h, W)
         From :func:`temporal_taps`.
     spatial : FilterPair
+    extra : tuple of str
+        Zoom-blur signals (keys of :data:`ZOOM_SIGNALS`) to add, filtered from the same
+        prefiltered camera/time signal as ``"x", "y", "I"``.
 
     Returns
     -------
     dict of str to (ndarray (F, h, W), kx, ky)
-        ``"x", "y", "I", "sx"`` and, where ``ct`` has them, ``"t", "sy"``: the source and
+        ``"x", "y", "I", "sx"`` and, where ``ct`` has them, ``"t", "sy"``, then ``extra``: the source and
         the correlation kernels along x and y.  Filtered (:func:`separable`), rows within
         ``spatial.radius`` of a band's edges are not valid.
     """
@@ -197,6 +218,10 @@ def spatial_jobs(ct: dict[str, np.ndarray], spatial: FilterPair) -> dict[str, tu
         jobs["t"] = (ct["t"], p, p)
     if "sy" in ct:
         jobs["sy"] = (ct["sy"], p, p)
+    kernels = {"p": p, "d": d, "o": spatial.moment, "m": spatial.moment_derivative}
+    for name in extra:
+        kx, ky = ZOOM_SIGNALS[name]
+        jobs[name] = (base, kernels[kx], kernels[ky])
     return jobs
 
 

@@ -30,10 +30,13 @@ from itertools import combinations_with_replacement
 
 import numpy as np
 
-from .models import ROWS
+from .models import ROWS, ZOOM_ROW_SIGNALS, ZOOM_ROWS
+
+# every row's (base signal, t-power, monomial): the model rows and the zoom-blur rows
+_ROW_SIGNALS = {**ROWS, **ZOOM_ROW_SIGNALS}
 
 __all__ = ["gaussian_moment_kernels", "entry_keys", "entry_groups", "structure_tensor",
-           "structure_tensor_reference", "DenseTensor", "PackedTensor"]
+           "structure_tensor_reference", "DenseTensor", "PackedTensor", "zoom_corrected"]
 
 
 def gaussian_moment_kernels(sigma: float, window: int) -> np.ndarray:
@@ -62,8 +65,8 @@ def entry_keys(rows: tuple[str, ...]):
     """For each upper-triangle entry: (a, b, signal pair, t-power, x-power, y-power)."""
     keys = []
     for a, b in combinations_with_replacement(range(len(rows)), 2):
-        sa, ta, ma = ROWS[rows[a]]
-        sb, tb, mb = ROWS[rows[b]]
+        sa, ta, ma = _ROW_SIGNALS[rows[a]]
+        sb, tb, mb = _ROW_SIGNALS[rows[b]]
         mono = ma + mb
         keys.append((a, b, tuple(sorted((sa, sb))), ta + tb, mono.count("x"), mono.count("y")))
     return keys
@@ -190,3 +193,47 @@ class PackedTensor:
     def block(self, rows: tuple[str, ...]) -> np.ndarray:
         """The sub-block of ``rows`` as full matrices, shape (N, len(rows), len(rows))."""
         return np.ascontiguousarray(np.moveaxis(self.planes[self.sub_index(rows)], -1, 0))
+
+
+def zoom_corrected(J, rows: tuple[str, ...]):
+    """J of ``rows`` with the zoom-blur correction, from J_ext over
+    :func:`estimator.models.zoom_rows` ``(rows)``.
+
+    A corrected row is the row plus its correction row (``ZOOM_ROWS``), so entry ``(a, b)``
+    of the corrected J is ``J_ext[a, b] + J_ext[a, b'] + J_ext[a', b] + J_ext[a', b']``
+    (``a'`` the correction of ``a``, terms without one left out): ``T J_ext T^T``.
+
+    Parameters
+    ----------
+    J : DenseTensor or PackedTensor
+        Over ``zoom_rows(rows)``.
+    rows : tuple of str
+
+    Returns
+    -------
+    DenseTensor or PackedTensor
+        Of the same kind, over ``rows``.
+    """
+    ext = J.rows
+    n = len(rows)
+    T = np.zeros((n, len(ext)))
+    for a, r in enumerate(rows):
+        T[a, ext.index(r)] = 1.0
+        if r in ZOOM_ROWS:
+            T[a, ext.index(ZOOM_ROWS[r])] = 1.0
+    if isinstance(J, DenseTensor):
+        return DenseTensor(np.matmul(np.matmul(T, J.J), T.T), rows)
+    terms = [np.flatnonzero(T[a]) for a in range(n)]
+    index = np.empty((n, n), dtype=np.int64)
+    planes = np.empty((n * (n + 1) // 2, J.planes.shape[1]))
+    e = 0
+    for a, b in combinations_with_replacement(range(n), 2):
+        out = planes[e]
+        np.copyto(out, J.planes[J.index[terms[a][0], terms[b][0]]])
+        for i in terms[a]:
+            for j in terms[b]:
+                if (i, j) != (terms[a][0], terms[b][0]):
+                    out += J.planes[J.index[i, j]]
+        index[a, b] = index[b, a] = e
+        e += 1
+    return PackedTensor(planes, index, rows)

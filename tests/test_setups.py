@@ -68,7 +68,7 @@ def test_spec_values_override_the_setup():
     assert p.texture == "product" and p.amplitude == 0.7 and p.height == 48
     assert p.width == 160 and p.spacing == (0.1, 0.1)
     s = spec.estimator_settings()
-    assert s == {"temporal_radius": 2, "combine": "mean"}
+    assert s == {"temporal_radius": 2, "combine": "mean", "zoom_correction": False}
 
 
 def _a1_error(setup, a1x):

@@ -46,19 +46,22 @@ CASES = {
     "static 2-D": (STATIC, ("bcc",), dict(sigma=4.0, window=17)),
     "static 1-D": (dict(STATIC, grid=(1, 5)), ("bcc",), dict(sigma=4.0, window=17)),
 }
-# Eq. 22 per quantity, measured at 536ab82 (2 significant digits)
+# Eq. 22 per quantity, measured with the zoom-blur correction (the default since it
+# landed; 536ab82 without it: U_Z of HF/full 2e-4 -> 6.5e-5, a1 6.4e-5 -> 9.4e-6, lateral
+# motion under brightness change 3-100x lower; Zx 1.1e-3 -> 1.7e-3, a2x (absolute)
+# 1.8e-7 -> 7.1e-7), 2 significant digits
 MEASURED = {
-    ("geometry 2-D", "bcc"): {"Z": 6.8e-05, "Zx": 0.0012, "Zy": 0.0004, "disparity": 6.8e-05, "Ux": 7e-05, "Uy": 2.9e-05, "Uz": 0.00013},
-    ("geometry 2-D", "hf"): {"Z": 6.8e-05, "Zx": 0.0011, "Zy": 0.00048, "disparity": 6.8e-05, "Ux": 7e-05, "Uy": 6.1e-05, "Uz": 0.0002, "a1": 6.3e-05, "a2": 6.7e-08},
-    ("geometry 2-D", "full"): {"Z": 6.8e-05, "Zx": 0.0011, "Zy": 0.00049, "disparity": 6.8e-05, "Ux": 7e-05, "Uy": 6.9e-05, "Uz": 0.0002, "a1": 6.4e-05, "a2": 6.8e-08, "a1x": 3.3e-07, "a1y": 3.3e-06, "a2x": 1.8e-07, "a2y": 1.5e-07},
-    ("geometry 1-D", "bcc"): {"Z": 7.1e-05, "Zx": 0.0013, "Zy": 0.00044, "disparity": 7.1e-05, "Ux": 4.5e-05, "Uy": 4.3e-05, "Uz": 0.00044},
-    ("geometry 1-D", "hf"): {"Z": 7.1e-05, "Zx": 0.0012, "Zy": 0.0005, "disparity": 7.1e-05, "Ux": 4.6e-05, "Uy": 7e-05, "Uz": 0.00047, "a1": 6.3e-05, "a2": 6.8e-08},
-    ("geometry 1-D", "full"): {"Z": 7.1e-05, "Zx": 0.0012, "Zy": 0.00052, "disparity": 7.1e-05, "Ux": 4.6e-05, "Uy": 7.7e-05, "Uz": 0.00047, "a1": 6.4e-05, "a2": 6.9e-08, "a1x": 3.9e-07, "a1y": 3.3e-06, "a2x": 1.9e-07, "a2y": 1.5e-07},
-    ("brightness 2-D", "full"): {"Z": 0.00016, "Zx": 0.00022, "Zy": 0.00015, "disparity": 0.00016, "Ux": 8.8e-06, "Uy": 5.7e-06, "Uz": 0.004, "a1": 0.0062, "a2": 0.0039, "a1x": 0.015, "a1y": 0.016, "a2x": 0.0093, "a2y": 0.0093},
-    ("brightness 1-D", "full"): {"Z": 0.00016, "Zx": 0.00022, "Zy": 0.00015, "disparity": 0.00016, "Ux": 8.8e-06, "Uy": 4.2e-06, "Uz": 0.004, "a1": 0.0062, "a2": 0.0039, "a1x": 0.015, "a1y": 0.016, "a2x": 0.0093, "a2y": 0.0093},
-    ("hf 2-D", "hf"): {"Z": 0.00016, "Zx": 1.4e-05, "Zy": 1.5e-06, "disparity": 0.00016, "Ux": 4.4e-07, "Uy": 1.5e-06, "Uz": 0.004, "a1": 0.0061, "a2": 0.004},
-    ("static 2-D", "bcc"): {"Z": 6.9e-05, "Zx": 0.0031, "Zy": 0.00023, "disparity": 6.9e-05},
-    ("static 1-D", "bcc"): {"Z": 7.2e-05, "Zx": 0.003, "Zy": 0.00044, "disparity": 7.2e-05},
+    ("geometry 2-D", "bcc"): {"Z": 6.8e-05, "Zx": 0.0021, "Zy": 0.0004, "disparity": 6.8e-05, "Ux": 7.1e-05, "Uy": 2.8e-05, "Uz": 6.1e-05},
+    ("geometry 2-D", "hf"): {"Z": 6.8e-05, "Zx": 0.0017, "Zy": 0.00042, "disparity": 6.8e-05, "Ux": 7.1e-05, "Uy": 3e-05, "Uz": 6.5e-05, "a1": 9.3e-06, "a2": 6.3e-08},
+    ("geometry 2-D", "full"): {"Z": 6.8e-05, "Zx": 0.0017, "Zy": 0.00041, "disparity": 6.8e-05, "Ux": 7.1e-05, "Uy": 3.1e-05, "Uz": 6.8e-05, "a1": 9.4e-06, "a2": 6.3e-08, "a1x": 6.4e-07, "a1y": 5.4e-07, "a2x": 7.1e-07, "a2y": 2e-07},
+    ("geometry 1-D", "bcc"): {"Z": 7.1e-05, "Zx": 0.0023, "Zy": 0.00044, "disparity": 7.1e-05, "Ux": 4.4e-05, "Uy": 4.4e-05, "Uz": 0.00042},
+    ("geometry 1-D", "hf"): {"Z": 7.1e-05, "Zx": 0.0018, "Zy": 0.00045, "disparity": 7.1e-05, "Ux": 4.4e-05, "Uy": 4.6e-05, "Uz": 0.00042, "a1": 9.3e-06, "a2": 6.5e-08},
+    ("geometry 1-D", "full"): {"Z": 7.1e-05, "Zx": 0.0018, "Zy": 0.00045, "disparity": 7.1e-05, "Ux": 4.4e-05, "Uy": 4.7e-05, "Uz": 0.00042, "a1": 9.3e-06, "a2": 6.5e-08, "a1x": 6.9e-07, "a1y": 5.9e-07, "a2x": 7.1e-07, "a2y": 2e-07},
+    ("brightness 2-D", "full"): {"Z": 0.00016, "Zx": 0.00022, "Zy": 0.00015, "disparity": 0.00016, "Ux": 2.4e-06, "Uy": 1.8e-06, "Uz": 0.004, "a1": 0.004, "a2": 0.004, "a1x": 0.015, "a1y": 0.016, "a2x": 0.0093, "a2y": 0.0093},
+    ("brightness 1-D", "full"): {"Z": 0.00016, "Zx": 0.00022, "Zy": 0.00015, "disparity": 0.00016, "Ux": 2.4e-06, "Uy": 1.3e-06, "Uz": 0.004, "a1": 0.004, "a2": 0.004, "a1x": 0.015, "a1y": 0.016, "a2x": 0.0093, "a2y": 0.0093},
+    ("hf 2-D", "hf"): {"Z": 0.00016, "Zx": 1.5e-05, "Zy": 1.5e-06, "disparity": 0.00016, "Ux": 3.3e-09, "Uy": 9.3e-08, "Uz": 0.004, "a1": 0.004, "a2": 0.004},
+    ("static 2-D", "bcc"): {"Z": 6.9e-05, "Zx": 0.0026, "Zy": 0.00036, "disparity": 6.9e-05},
+    ("static 1-D", "bcc"): {"Z": 7.2e-05, "Zx": 0.0027, "Zy": 0.00044, "disparity": 7.2e-05},
 }
 # quantities whose truth is 0 in a case (Eq. 22's absolute error); every other one is
 # relative: non-zero and of one sign on every pixel, negative for Zy, Uy, Uz, a1, a2,

@@ -20,14 +20,19 @@ the paper's words                      the number
 =====================================  ==================================================
 
 A breakdown is located between the last value at which a model has not broken down and
-the first from which it stays broken; the sweeps sample at least 4 values per decade near
-every breakdown, so it is located within a factor 1.8.  Each check's docstring says what
+the first from which it stays broken; the shipped sweeps sample 6 values per decade
+(largest step 5/3), so it is located within a factor 5/3.  Each check's docstring says what
 it measures and why that expresses the sentence; ``docs/reproduction.md`` prints them.
 The error measure is the CSV's ``q`` (Eq. 22: relative against a non-zero reference,
 absolute otherwise); what the brightness errors are measured against is the setup's
 (``bench/setups.py``).  All checks use noise-free rows unless the observation is about
-noise.  A verdict is ``holds`` (every part), ``partly``, ``does not hold``, or
-``not tested`` (the sweep lacks the data, which is named).
+noise.  Each observation is a list of sub-checks (:class:`Part`), one of them or more
+the sentence's core number.  A verdict is ``holds`` (every part), ``partly`` (some parts,
+the core among them), ``does not hold`` (the core fails, or every part does), or ``not
+tested`` (the sweep lacks the data, which is named); the table gives k of n parts and
+names those that failed.  A part that is true by construction of the measurement (e.g.
+an error that only measures the global reference's distance from the local truth) is
+named as such and not counted, and the verdict cannot be ``holds`` on it.
 """
 
 from __future__ import annotations
@@ -57,9 +62,40 @@ SIGNIFICANT_A1 = 0.01     # "a1 significantly larger than 0": 1 % brightness cha
 
 
 @dataclass
+class Part:
+    """One sub-check of an observation.
+
+    Attributes
+    ----------
+    label : str
+        What it checks, in a few words.
+    ok : bool
+    core : bool
+        The sentence's core number: when it fails the observation does not hold, however
+        many other parts pass.
+    construction : str
+        Non-empty when the part is true by construction of the measurement (not of the
+        estimate): why, and the reading that would make it a real test.  Such a part is
+        reported but not counted.
+    """
+
+    label: str
+    ok: bool
+    core: bool = False
+    construction: str = ""
+
+
+@dataclass
 class Result:
     verdict: str
     numbers: str
+    parts: str = ""
+
+
+def _result(parts: list[Part], numbers: str) -> Result:
+    """The verdict of ``parts`` (:func:`_verdict`) with the parts written out."""
+    verdict, text = _verdict(parts)
+    return Result(verdict, numbers, text)
 
 
 def _curve(df, model, quantity, param, noise=0.0) -> pd.Series:
@@ -91,10 +127,47 @@ def _slope(s: pd.Series) -> float:
     return float(np.polyfit(np.log(np.abs(s.index.to_numpy())), np.log(s.to_numpy()), 1)[0])
 
 
-def _verdict(checks: list[bool]) -> str:
-    if all(checks):
-        return "holds"
-    return "partly" if any(checks) else "does not hold"
+def _verdict(parts: list[Part]) -> tuple[str, str]:
+    """``(verdict, parts)``: ``holds`` when every counted part holds and no core part is
+    true by construction; ``does not hold`` when a core part fails or every counted part
+    does; ``partly`` otherwise.  Parts true by construction are not counted."""
+    real = [p for p in parts if not p.construction]
+    failed = [p for p in real if not p.ok]
+    if any(p.core for p in failed) or (real and len(failed) == len(real)):
+        verdict = "does not hold"
+    elif not failed and not any(p.core and p.construction for p in parts) and real:
+        verdict = "holds"
+    else:
+        verdict = "partly"
+    text = f"{len(real) - len(failed)}/{len(real)} hold"
+    if failed:
+        text += "; failed: " + ", ".join(p.label + (" (core)" if p.core else "")
+                                         for p in failed)
+    reasons: dict[str, list[str]] = {}
+    for p in parts:
+        if p.construction:
+            reasons.setdefault(p.construction, []).append(p.label)
+    if reasons:
+        text += "; true by construction, not counted: " + "; ".join(
+            f"{', '.join(labels)} ({why})" for why, labels in reasons.items())
+    return verdict, text
+
+
+def _is_reference_mismatch(s: pd.Series, scale: float) -> bool:
+    """The error is ``|value| * scale`` within 25 % wherever that exceeds ten times the
+    error at value 0 (at least three such values): it measures the distance between the
+    local and the global truth, not the estimate.  (Two such errors are within a factor
+    1.25 of each other whatever the estimates do, so a factor-2 comparison of them, or
+    their growth over the axis, is decided by the reference alone.)"""
+    mismatch = np.abs(s.index.to_numpy()) * scale
+    big = s[(s.index != 0) & (mismatch >= 10 * s.iloc[0])]
+    ratio = big / (np.abs(big.index.to_numpy()) * scale)
+    return bool(len(big) >= MIN_VALUES and (np.abs(ratio - 1) < 0.25).all())
+
+
+_LOCAL = ("the error is a1x * mean|X|, the global reference's distance from the local "
+          "truth; a real test measures against the local truth a + a_x X, as the gridflow "
+          "setup does")
 
 
 def _yn(flag: bool) -> str:
@@ -156,9 +229,11 @@ def obs1(df) -> Result:
     above = s[s.index > 1]
     ok_from = next((v for v in s.index if v > 0 and (s[(s.index >= v) & (s.index < 1)]
                                                        < 0.0025).all()), None)
-    checks = [bool(len(mid) and (mid < 0.0025).all()),
-              bool(len(above) and above.max() > mid.max() and above.max() <= 0.05)]
-    return Result(_verdict(checks),
+    parts = [Part("below 0.25 % for 0.1 <= a1 < 1", bool(len(mid) and (mid < 0.0025).all()),
+                  core=True),
+             Part("beyond 1 higher, at most 5 %",
+                  bool(len(above) and above.max() > mid.max() and above.max() <= 0.05))]
+    return _result(parts,
                   f"Q_rel(a1), full: {_format_curve(s, 8)}; below 0.25 % from a1 = {ok_from} on; "
                   f"max beyond 1: {_fmt(above.max())}")
 
@@ -168,7 +243,7 @@ def obs2(df) -> Result:
     every non-zero value."""
     s = _curve(df, "full", "a2", "a2")
     k = _slope(s)
-    return Result(_verdict([SLOPE[0] <= k <= SLOPE[1]]),
+    return _result([Part("log-log slope 0.8-1.2", bool(SLOPE[0] <= k <= SLOPE[1]), core=True)],
                   f"Q_rel(a2), full: {_format_curve(s, 6)}; log-log slope {k:.2f}")
 
 
@@ -182,7 +257,12 @@ def obs3(df) -> Result:
     nz = hf.index != 0
     r = (hf / full)[nz]
     worse = bool((r >= 0.9).all() and r.iloc[-1] >= 2)
-    return Result(_verdict(strong + [worse]),
+    xm = _x_mean(df)
+    built = [_LOCAL if _is_reference_mismatch(c, xm) else "" for c in (hf, full)]
+    parts = [Part("strong cross-talk, HF", strong[0], core=True, construction=built[0]),
+             Part("strong cross-talk, full", strong[1], core=True, construction=built[1]),
+             Part("stronger for HF", worse)]
+    return _result(parts,
                   f"Q(a1) vs a1x, HF: {_format_curve(hf, 5)}; full: {_format_curve(full, 5)}; strong "
                   f"cross-talk HF/full: {_yn(strong[0])}/{_yn(strong[1])}; HF/full ratio "
                   f"{_fmt(r.min())}..{_fmt(r.max())}, at the largest a1x {_fmt(r.iloc[-1])}")
@@ -196,9 +276,23 @@ def obs4(df) -> Result:
     r = (hf / full)[hf.index != 0]
     present = [bool(c.iloc[-1] >= 10 * c.iloc[0]) for c in (hf, full)]
     same = bool(((r >= 1 / FACTOR) & (r <= FACTOR)).all())
-    return Result(_verdict(present + [same]),
+    xm = _x_mean(df)
+    why = _LOCAL.replace("a1x", "a2x")
+    built = [why if _is_reference_mismatch(c, xm) else "" for c in (hf, full)]
+    # the U_Z half of "modelling a2x does not really help"
+    uh, uf = _curve(df, "hf", "Uz", "a2x"), _curve(df, "full", "Uz", "a2x")
+    ur = (uh / uf)[uh.index != 0]
+    uz_same = bool(((ur >= 1 / FACTOR) & (ur <= FACTOR)).all())
+    parts = [Part("cross-talk present, HF", present[0], construction=built[0]),
+             Part("cross-talk present, full", present[1], construction=built[1]),
+             Part("HF's a2 error within a factor 2 of full's", same, core=True,
+                  construction=why if all(built) else ""),
+             Part("HF's U_Z error within a factor 2 of full's (a2x does not help U_Z)",
+                  uz_same)]
+    return _result(parts,
                   f"Q(a2) HF/full vs a2x: {_format_curve(r, 6)}; cross-talk present HF/full: "
-                  f"{_yn(present[0])}/{_yn(present[1])}")
+                  f"{_yn(present[0])}/{_yn(present[1])}; Q_rel(U_Z) HF/full vs a2x: "
+                  f"{_format_curve(ur, 6)}")
 
 
 def obs5(df) -> Result:
@@ -214,10 +308,10 @@ def obs5(df) -> Result:
             ok = ~_broken(df, model, p).reindex(s.index, fill_value=False)
             s = s[ok]
             leak = float((s - s.iloc[0]).abs().max() / (np.abs(s.index).max() * scale))
-            checks.append(leak < LEAK)
+            checks.append(Part(f"{model} {q} independent of {p}", bool(leak < LEAK)))
             cut = "" if ok.all() else f" (up to {np.abs(s.index).max():g})"
             parts.append(f"{model} {q}<-{p}: {leak:.1e}{cut}")
-    return Result(_verdict(checks), "leak (error growth / perturbation): " + ", ".join(parts))
+    return _result(checks, "leak (error growth / perturbation): " + ", ".join(parts))
 
 
 def obs6(df) -> Result:
@@ -228,7 +322,8 @@ def obs6(df) -> Result:
     r = (hf / full)[hf.index != 0]
     top = r[np.abs(r.index) >= np.abs(r.index).max() / 10]
     ok = bool(((top >= ORDERS[0]) & (top <= ORDERS[1])).all())
-    return Result(_verdict([ok]),
+    return _result([Part("HF/full a2 error 10-10^2.5 over the top decade of a1x", ok,
+                         core=True)],
                   f"Q(a2) HF/full vs a1x: {_format_curve(r, 8)}; top decade "
                   f"{_fmt(top.min())}..{_fmt(top.max())}")
 
@@ -243,7 +338,10 @@ def obs7(df) -> Result:
     small = bool((h[h.index <= 0.1] < STABLE).all() and (f[f.index <= 0.1] < STABLE).all())
     weak = not (_broken(df, "hf", "a1").any() or _broken(df, "full", "a1").any()) and \
         bool((h < BREAK).all() and (f < BREAK).all())
-    return Result(_verdict([bcc_ok, small, weak]),
+    parts = [Part("BCC broken from a1 = 0.01", bool(bcc_ok), core=True),
+             Part("HF, full below 0.01 for a1 <= 0.1", small, core=True),
+             Part("HF, full never break down", bool(weak))]
+    return _result(parts,
                   f"BCC breaks down between a1 = {lo:g} and {hi:g}; Q_rel(U_Z) HF/full "
                   f"max for a1 <= 0.1: {_fmt(h[h.index <= 0.1].max())}/"
                   f"{_fmt(f[f.index <= 0.1].max())}, overall {_fmt(h.max())}/{_fmt(f.max())}")
@@ -254,8 +352,10 @@ def obs8(df) -> Result:
     every a1x, while BCC and HF break down within the sweep and stay broken beyond."""
     f = _curve(df, "full", "Uz", "a1x")
     (blo, bhi), (hlo, hhi) = breakdown(df, "bcc", "a1x"), breakdown(df, "hf", "a1x")
-    checks = [bool((f < STABLE).all()), math.isfinite(bhi), math.isfinite(hhi)]
-    return Result(_verdict(checks),
+    checks = [Part("full below 0.01 at every a1x", bool((f < STABLE).all()), core=True),
+              Part("BCC breaks down", math.isfinite(bhi)),
+              Part("HF breaks down", math.isfinite(hhi))]
+    return _result(checks,
                   f"full's max Q_rel(U_Z) {_fmt(f.max())}; BCC breaks down between a1x = "
                   f"{blo:g} and {bhi:g}, HF between {hlo:g} and {hhi:g}")
 
@@ -280,7 +380,12 @@ def obs9(df) -> Result:
         agree.append(max(first) <= FACTOR * min(first))
     (alo, ahi), (xlo, xhi) = breakdown(df, "bcc", "a2"), breakdown(df, "bcc", "a2x")
     near = [_near(alo, ahi, 0.1), _near(xlo, xhi, 0.02)]
-    return Result(_verdict([similar] + agree + near),
+    parts = [Part("a2 and a2x cause similar U_Z errors", similar),
+             Part("models agree at the smallest |a2|", bool(agree[0])),
+             Part("models agree at the smallest |a2x|", bool(agree[1])),
+             Part("BCC breaks down at |a2| ~ 0.1", bool(near[0]), core=True),
+             Part("BCC breaks down at |a2x| ~ 0.02", bool(near[1]), core=True)]
+    return _result(parts,
                   f"full's U_Z error under a2x vs a2 at the same brightness change "
                   f"(mean |X| = {xm:.2g}): ratio {_fmt(ratio.min()) if common.any() else '-'}.."
                   f"{_fmt(ratio.max()) if common.any() else '-'}; models agree at the smallest "
@@ -289,38 +394,63 @@ def obs9(df) -> Result:
                   "(paper ~0.02)")
 
 
+def _seed_spread(df, model, quantity, param, noise) -> tuple[int, pd.Series]:
+    """``(seeds, spread)``: the number of noise seeds and, per value, the standard deviation
+    of ``q`` over them relative to their mean (0 with one seed)."""
+    d = df[(df.model == model) & (df.quantity == quantity) & (df.param == param)
+           & (df.noise == noise)]
+    if "motion" in d:
+        d = d[d.motion == "translation"]
+    g = d.groupby("value")["q"]
+    n = int(g.count().min()) if len(d) else 0
+    spread = (g.std(ddof=1) / g.mean()).fillna(0.0) if n > 1 else g.mean() * 0.0
+    return n, spread
+
+
 def obs10(df) -> Result:
-    """Noise (the sweep's smallest sigma_n > 0): little change for large values: at the two
-    largest values of each axis, wherever a model's noise-free Q_rel(U_Z) is at least the
-    error noise alone causes (its noisy error at value 0: there the plotted curve is the
-    systematic error), the noisy error is within a factor 1.5 of it, or both are broken
-    down; for small a1, a1x (up to 0.02, 0.002) the full model's error rises from well
-    below 0.01 (below 0.005) to nearly 0.1 (within a factor 2: 0.05-0.2)."""
+    """Noise (the sweep's smallest sigma_n > 0, errors averaged over its seeds): little
+    change for large values: at the two largest values of each axis, wherever a model's
+    noise-free Q_rel(U_Z) is at least the error noise alone causes (its noisy error at
+    value 0: there the plotted curve is the systematic error), the noisy error is within a
+    factor 1.5 of it; pairs where both runs have broken down are not counted (nothing is
+    left to change).  Core: for small a1, a1x (up to 0.02, 0.002) the full model's error
+    rises from well below 0.01 (below 0.005) to nearly 0.1 (within a factor 2: 0.05-0.2)."""
     n = min(v for v in df.noise.unique() if v > 0)
-    same, changed = [], []
+    same, changed, both_broken = [], [], 0
     for p in ("a1", "a1x", "a2", "a2x"):
         for m in ("bcc", "hf", "full"):
             c0, c1 = _curve(df, m, "Uz", p, 0.0), _curve(df, m, "Uz", p, n)
             b0, b1 = _broken(df, m, p, 0.0), _broken(df, m, p, n)
             for v in [v for v in c0.index[-2:] if c0[v] >= c1.iloc[0]]:
-                ok = bool((c1[v] <= IDENTICAL * c0[v] and c0[v] <= IDENTICAL * c1[v])
-                          or (b0[v] and b1[v]))
+                if b0[v] and b1[v]:
+                    both_broken += 1
+                    continue
+                ok = bool(c1[v] <= IDENTICAL * c0[v] and c0[v] <= IDENTICAL * c1[v])
                 same.append(ok)
                 if not ok:
                     changed.append(f"{m} {p}={abs(v):g}: {_fmt(c0[v])} -> {_fmt(c1[v])}")
     small, parts = [], []
+    seeds = 0
     for p, vmax in (("a1", 0.02), ("a1x", 0.002)):
         f0, f1 = _curve(df, "full", "Uz", p, 0.0), _curve(df, "full", "Uz", p, n)
+        seeds, spread = _seed_spread(df, "full", "Uz", p, n)
         sel = np.abs(f0.index) <= vmax
         small.append(bool((f0[sel] < STABLE / 2).all() and (f1[sel] >= 0.1 / FACTOR).all()
                           and (f1[sel] <= 0.1 * FACTOR).all()))
+        sp = spread.reindex(f0.index[sel]).max()
         parts.append(f"{p} <= {vmax:g}: full {_fmt(f0[sel].max())} -> "
-                     f"{_fmt(f1[sel].min())}..{_fmt(f1[sel].max())}")
-    return Result(_verdict([all(same)] + small),
-                  f"largest values unchanged by noise: {sum(same)}/{len(same)}"
-                  + (f" (changed: {'; '.join(changed)})" if changed else "")
-                  + f"; small values, noise-free -> sigma_n = {n:g}: " + "; ".join(parts)
-                  + " (paper: from well below 0.01 to nearly 0.1)")
+                     f"{_fmt(f1[sel].min())}..{_fmt(f1[sel].max())} (seed spread "
+                     f"{sp:.0%})")
+    checks = [Part("largest values unchanged by noise", all(same)),
+              Part("small a1: U_Z error rises to nearly 0.1", small[0], core=True),
+              Part("small a1x: U_Z error rises to nearly 0.1", small[1], core=True)]
+    return _result(checks,
+                   f"largest values unchanged by noise: {sum(same)}/{len(same)}"
+                   + (f" (changed: {'; '.join(changed)})" if changed else "")
+                   + f", {both_broken} pairs broken down in both runs not counted"
+                   + f"; small values, noise-free -> sigma_n = {n:g} (mean of {seeds} "
+                   "seeds): " + "; ".join(parts)
+                   + " (paper: from well below 0.01 to nearly 0.1)")
 
 
 CLAIMS = [
@@ -402,9 +532,10 @@ def growth1(df) -> Result:
     broken = (tr > BREAK) & (tr >= RATIO * af)
     flags = broken.to_numpy()
     first = next((i for i in range(len(flags)) if flags[i:].all()), None)
-    checks = [first is not None, bool((af < STABLE).all())]
+    checks = [Part("translation model broken from some rate on", first is not None, core=True),
+              Part("affine model stable", bool((af < STABLE).all()), core=True)]
     where = f"from growth {abs(tr.index[first]):g}" if first is not None else "nowhere"
-    return Result(_verdict(checks),
+    return _result(checks,
                   f"translation Q_rel(U_Z) vs growth: {_format_curve(tr, 7)}; broken {where}; "
                   f"affine max {_fmt(af.max())}")
 
@@ -417,9 +548,10 @@ def growth2(df) -> Result:
     broken = (tr > BREAK) & (tr >= RATIO * af)
     flags = broken.to_numpy()
     first = next((i for i in range(len(flags)) if flags[i:].all()), None)
-    checks = [first is not None, bool((af < STABLE).all())]
+    checks = [Part("translation model broken from some rate on", first is not None, core=True),
+              Part("affine model stable", bool((af < STABLE).all()), core=True)]
     where = f"from rotation {abs(tr.index[first]):g}" if first is not None else "nowhere"
-    return Result(_verdict(checks),
+    return _result(checks,
                   f"translation Q_rel(U_Z) vs rotation: {_format_curve(tr, 6)}; broken "
                   f"{where}; affine max {_fmt(af.max())}")
 
@@ -458,12 +590,13 @@ def check_claims(df: pd.DataFrame) -> pd.DataFrame:
                                          f"model, both motions, 0 and {MIN_VALUES} other "
                                          f"noise-free values on the {p} axis")
             rows.append({"id": cid, "observation": text, "verdict": r.verdict,
-                         "numbers": r.numbers})
+                         "parts": r.parts, "numbers": r.numbers})
         return pd.DataFrame(rows)
     for cid, text, fn in CLAIMS:
         why = missing_data(df, cid)
         r = Result("not tested", f"the sweep lacks its data: {why}") if why else fn(df)
-        rows.append({"id": cid, "observation": text, "verdict": r.verdict, "numbers": r.numbers})
+        rows.append({"id": cid, "observation": text, "verdict": r.verdict, "parts": r.parts,
+                     "numbers": r.numbers})
     return pd.DataFrame(rows)
 
 
@@ -471,10 +604,10 @@ def claims_markdown(table: pd.DataFrame, source: str) -> str:
     """The verdict table of one sweep, as a markdown block."""
     lines = [f"Checked by `gridflow claims {source}` (thresholds and checks: "
              "`bench/claims.py`, below).", "",
-             "| # | observation | verdict | measured |", "|---|---|---|---|"]
+             "| # | observation | verdict | sub-checks | measured |", "|---|---|---|---|---|"]
     for r in table.itertuples():
-        cells = [str(c).replace("|", "\\|") for c in (r.observation, r.numbers)]
-        lines.append(f"| {r.id} | {cells[0]} | **{r.verdict}** | {cells[1]} |")
+        cells = [str(c).replace("|", "\\|") for c in (r.observation, r.parts, r.numbers)]
+        lines.append(f"| {r.id} | {cells[0]} | **{r.verdict}** | {cells[1]} | {cells[2]} |")
     return "\n".join(lines)
 
 
@@ -500,7 +633,7 @@ def write_claims(table: pd.DataFrame, doc=None, csv=None, source: str = "",
 
     if csv:
         with atomic_write(csv, "w") as fh:
-            table[["id", "verdict", "numbers"]].to_csv(fh, index=False)
+            table[["id", "verdict", "parts", "numbers"]].to_csv(fh, index=False)
     if doc:
         doc = Path(doc)
         text = doc.read_text() if doc.exists() else ""

@@ -261,7 +261,7 @@ def cmd_claims(a) -> int:
         check_output(a.write_doc, suffixes=".md", inputs=[a.csv], what="--write-doc")
     df = read_sweep_csv(a.csv)
     table = check_claims(df)
-    print(table.to_string(index=False, columns=["id", "verdict", "numbers"],
+    print(table.to_string(index=False, columns=["id", "verdict", "parts", "numbers"],
                           max_colwidth=110))
     if a.write_doc or a.write_csv:
         names = df["sweep"].unique() if "sweep" in df else []

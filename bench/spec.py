@@ -236,10 +236,12 @@ class SweepSpec:
                 raise SpecError(f"{source}: {p.param} = {p.value}: {exc}") from None
 
     def points(self) -> list[Point]:
-        """All points in the canonical order of the output CSV."""
+        """All points in the canonical order of the output CSV.  A noise-free point is
+        run with the first seed only: the seed draws the noise, so every seed would
+        render the same volume."""
         return [Point(param, float(v), float(n), int(s))
                 for param, values in self.axes for v in values
-                for n in self.noise for s in self.seeds]
+                for n in self.noise for s in (self.seeds if n > 0 else self.seeds[:1])]
 
     def base_params(self) -> SinusoidParams:
         """Generator parameters common to all points: the setup's, then ``[base]``."""

@@ -56,6 +56,7 @@ def stored():
 def test_reduced_sweep_matches_stored_curves(stored, tmp_path):
     spec = SweepSpec.from_toml(ROOT / "bench" / "sweeps" / "paper.toml")
     spec.axes = [(p, REDUCED[p]) for p, _ in spec.axes]
+    spec.seeds = spec.seeds[:1]          # the first seed's rows: the others follow suit
     spec.validate()
     fresh = run_sweep(spec, tmp_path / "reduced.csv", workers=2, progress=False)
     m = fresh.merge(stored, on=KEY, how="left", suffixes=("", "_stored"), indicator=True)

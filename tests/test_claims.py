@@ -143,7 +143,7 @@ def test_a2_and_a2x_errors_are_compared():
 
 
 @pytest.mark.parametrize("where, x, verdict", [(0.07, "0.05..0.07", "holds"),
-                                               (0.3, "0.2..0.3", "partly")])
+                                               (0.3, "0.2..0.3", "does not hold")])
 def test_breakdown_location_is_checked(where, x, verdict):
     """BCC breaking at |a2| ~ 0.06 is "≈ 0.1" (within a factor 2); at 0.25 it is not."""
     def change(p, m, q, v, noise, val):
@@ -197,9 +197,11 @@ FULL_A1_ON_A1X = {a: 1e-4 + 5 * a for a in A1X}       # _ideal's full-model a1 e
 
 
 LEVELS = [
-    # (observation, what, change at the level times k, verdict below, verdict above)
+    # (observation, what, change at the level times k, verdict below, verdict above); a
+    # failing core part (the sentence's number) gives "does not hold", another "partly"
     ("1", "Q_rel(a1) < 0.25 % for 0.1 <= a1 < 1",
-     lambda k: _at("a1", "full", "a1", 0.5, 0.0, lambda v: 0.0025 * k), "holds", "partly"),
+     lambda k: _at("a1", "full", "a1", 0.5, 0.0, lambda v: 0.0025 * k), "holds",
+     "does not hold"),
     ("1", "beyond a1 = 1 at most 5 %",
      lambda k: _at("a1", "full", "a1", 2.0, 0.0, lambda v: 0.05 * k), "holds", "partly"),
     ("2", "log-log slope at least 0.8",
@@ -217,11 +219,12 @@ LEVELS = [
      lambda k: _at("a1x", "hf", "a1", 0.01, 0.0, lambda v: 0.9 * k * FULL_A1_ON_A1X[0.01]),
      "partly", "holds"),
     ("3", "strong cross-talk: 10x the error at a1x = 0",
-     lambda k: _at("a1x", "full", "a1", 0.1, 0.0, lambda v: 10 * k * 1e-4), "partly", "holds"),
+     lambda k: _at("a1x", "full", "a1", 0.1, 0.0, lambda v: 10 * k * 1e-4), "does not hold",
+     "holds"),
     ("4", "HF/full a2 error ratio at most 2",
-     lambda k: _at("a2x", "hf", "a2", 0.01, 0.0, lambda v: 2 * k * v), "holds", "partly"),
+     lambda k: _at("a2x", "hf", "a2", 0.01, 0.0, lambda v: 2 * k * v), "holds", "does not hold"),
     ("4", "HF/full a2 error ratio at least 1/2",
-     lambda k: _at("a2x", "hf", "a2", 0.01, 0.0, lambda v: 0.5 * k * v), "partly", "holds"),
+     lambda k: _at("a2x", "hf", "a2", 0.01, 0.0, lambda v: 0.5 * k * v), "does not hold", "holds"),
     ("5", "leak below 1 % of the perturbation",
      lambda k: _at("a2", "hf", "a1", 0.3, 0.0, lambda v: v + 0.01 * k * 0.3),
      "holds", "partly"),
@@ -238,11 +241,12 @@ LEVELS = [
      # (the noisy curve follows, 10 % above, as _ideal has it: obs. 10 unchanged)
      lambda k: lambda p, m, q, v, n, val: (
          0.1 * k * (1.1 if n else 1.0) if (p, m, q) == ("a1", "bcc", "Uz") and v else val),
-     "partly", "holds"),
+     "does not hold", "holds"),
     ("7", "does not react: HF's U_Z error below 0.01 for a1 <= 0.1",
-     lambda k: _at("a1", "hf", "Uz", 0.1, 0.0, lambda v: 0.01 * k), "holds", "partly"),
+     lambda k: _at("a1", "hf", "Uz", 0.1, 0.0, lambda v: 0.01 * k), "holds", "does not hold"),
     ("8", "full stable: U_Z error below 0.01 at every a1x",
-     lambda k: _at("a1x", "full", "Uz", 0.05, 0.0, lambda v: 0.01 * k), "holds", "partly"),
+     lambda k: _at("a1x", "full", "Uz", 0.05, 0.0, lambda v: 0.01 * k), "holds",
+     "does not hold"),
     ("9", "the three models agree within a factor 2 at the smallest |a2|",
      lambda k: _at("a2", "bcc", "Uz", 0.001, 0.0, lambda v: 2 * k * (1e-4 + 1.2 * 0.001)),
      "holds", "partly"),
@@ -250,11 +254,14 @@ LEVELS = [
      lambda k: _at("a2", "full", "Uz", 0.3, 0.025, lambda v: 1.5 * k * (1e-4 + 1.2 * 0.3)),
      "holds", "partly"),
     ("10", "small a1: noise-free U_Z error below 0.005",
-     lambda k: _at("a1", "full", "Uz", 0.02, 0.0, lambda v: 0.005 * k), "holds", "partly"),
+     lambda k: _at("a1", "full", "Uz", 0.02, 0.0, lambda v: 0.005 * k), "holds",
+     "does not hold"),
     ("10", "small a1: noisy U_Z error at least 0.05",
-     lambda k: _at("a1", "full", "Uz", 0.01, 0.025, lambda v: 0.05 * k), "partly", "holds"),
+     lambda k: _at("a1", "full", "Uz", 0.01, 0.025, lambda v: 0.05 * k), "does not hold",
+     "holds"),
     ("10", "small a1: noisy U_Z error at most 0.2",
-     lambda k: _at("a1", "full", "Uz", 0.01, 0.025, lambda v: 0.2 * k), "holds", "partly"),
+     lambda k: _at("a1", "full", "Uz", 0.01, 0.025, lambda v: 0.2 * k), "holds",
+     "does not hold"),
 ]
 
 
@@ -290,8 +297,8 @@ def test_breakdown_location_boundaries():
     (0.15, 0.2] (lo 0.15 < 0.2: holds), from 0.3 on (0.2, 0.3] (lo not below 0.2: does
     not), from 0.05 on (0.02, 0.05] (hi 0.05 >= 0.05: holds), from 0.02 on (0.01, 0.02]
     (hi below 0.05: does not)."""
-    for where, verdict in ((0.2, "holds"), (0.3, "partly"), (0.05, "holds"),
-                           (0.02, "partly")):
+    for where, verdict in ((0.2, "holds"), (0.3, "does not hold"), (0.05, "holds"),
+                           (0.02, "does not hold")):
         def change(p, m, q, v, noise, val, where=where):
             if p == "a2" and m == "bcc" and q == "Uz" and noise == 0:
                 return 100.0 if abs(v) >= where else 1e-4 + 1.2 * abs(v)
@@ -314,7 +321,7 @@ def _growth_sweep(tr_uz, af_uz):
     return pd.DataFrame(rows)
 
 
-@pytest.mark.parametrize("k, tr_verdict", [(BELOW, "partly"), (ABOVE, "holds")])
+@pytest.mark.parametrize("k, tr_verdict", [(BELOW, "does not hold"), (ABOVE, "holds")])
 def test_growth_breakdown_level(k, tr_verdict):
     """G1 and G2 read "breaks down" as the paper's observations do: above 0.1 (and 10x
     the affine model's) from some rate on; here at 0.1 x (1 -/+ 1 %) from 1e-3 on."""
@@ -323,10 +330,70 @@ def test_growth_breakdown_level(k, tr_verdict):
     assert got == {"G1": tr_verdict, "G2": tr_verdict}
 
 
-@pytest.mark.parametrize("k, verdict", [(BELOW, "holds"), (ABOVE, "partly")])
+@pytest.mark.parametrize("k, verdict", [(BELOW, "holds"), (ABOVE, "does not hold")])
 def test_growth_stability_level(k, verdict):
     """The affine model's U_Z "does not break down": below 0.01 at every rate."""
     df = _growth_sweep(lambda p, v: 1.0 if v >= 1e-3 else 1e-4,
                        lambda p, v: 0.01 * k if v == 1e-2 else 1e-4)
     got = dict(zip(check_claims(df).id, check_claims(df).verdict))
     assert got == {"G1": verdict, "G2": verdict}
+
+
+def _table(df) -> pd.DataFrame:
+    return check_claims(df).set_index("id")
+
+
+def test_parts_name_what_failed():
+    """The verdict says k of n sub-checks and names the failed ones, the core marked."""
+    def change(p, m, q, v, noise, val):
+        if p == "a1" and m == "hf" and q == "Uz" and noise == 0 and abs(v) == 0.1:
+            return 0.02                        # HF reacts on small a1 (a core part of 7)
+        return val
+    row = _table(_sweep(change)).loc["7"]
+    assert row.verdict == "does not hold"
+    assert row.parts.startswith("2/3 hold; failed: HF, full below 0.01 for a1 <= 0.1 (core)")
+    assert _table(_sweep()).loc["7"].parts == "3/3 hold"
+
+
+def test_a_reference_mismatch_is_true_by_construction():
+    """Measured against the global a1, the full model's a1 error on the a1x axis is
+    a1x * mean|X| whatever the estimate does (the review: obs. 3 held by construction
+    under the paper setup): that part is named and not counted, and the observation
+    cannot hold on it."""
+    df = _sweep()
+    xm = _x_mean(df)
+
+    def change(p, m, q, v, noise, val):
+        if p == "a1x" and q == "a1" and m == "full":
+            return 1e-4 + abs(v) * xm
+        return val
+    row = _table(_sweep(change)).loc["3"]
+    assert row.verdict == "partly"
+    assert "true by construction, not counted: strong cross-talk, full" in row.parts
+    assert "true by construction" not in _table(df).loc["3"].parts
+
+
+def test_the_u_z_side_of_a2x_not_helping_is_checked():
+    """The review: "modelling a2x does not help" was only checked on a2; on U_Z the data
+    contradicted it.  HF's U_Z error 10x full's under a2x: obs. 4 partly."""
+    def change(p, m, q, v, noise, val):
+        if p == "a2x" and q == "Uz" and m == "hf" and v:
+            return val * 10
+        return val
+    row = _table(_sweep(change)).loc["4"]
+    assert row.verdict == "partly" and "a2x does not help U_Z" in row.parts
+
+
+def test_pairs_broken_in_both_runs_are_not_counted_as_unchanged():
+    """The review: "largest values unchanged 22/22" counted pairs where both runs had
+    broken down.  In the ideal sweep BCC is broken at the two largest |a2| and |a2x| (and
+    a1, a1x) with and without noise: those pairs are left out of the count."""
+    numbers = _table(_sweep()).loc["10"].numbers
+    import re
+
+    k, n = map(int, re.search(r"unchanged by noise: (\d+)/(\d+)", numbers).groups())
+    broken = int(re.search(r"(\d+) pairs broken down in both runs", numbers).group(1))
+    assert broken >= 4 and k == n
+    # every pair of the two largest values of 4 axes x 3 models is counted once
+    # (those below the noise floor aside, as the check says)
+    assert n + broken <= 4 * 3 * 2

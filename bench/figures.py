@@ -27,6 +27,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 __all__ = ["fig2", "fig3", "fig4", "fig_peers_depth", "draw_figures", "sinusoid_fig2", "save",
+           "setup_label",
            "STYLE", "MODEL_STYLE", "PARAM_LABEL"]
 
 STYLE = {"font.size": 8, "axes.titlesize": 8, "axes.labelsize": 8, "legend.fontsize": 7,
@@ -75,6 +76,45 @@ def _log_axes(ax) -> None:
     ax.set_yscale("log")
 
 
+# Fig. 4's y range: errors above TOP are drawn at the top edge (BCC's broken values reach
+# 1e10 and would squash the 1e-3 .. 1e-1 band where the paper's statements live)
+TOP = 10.0
+BREAK_LEVEL = 0.1          # bench.claims.BREAK: "breaks down" (the dashed grey line)
+# the paper's breakdown positions of BCC (observation 9), marked on their axes
+PAPER_MARKS = {"a2": 0.1, "a2x": 0.02}
+# HF's line is drawn dashed with open markers: it often lies exactly under full's
+_LINE = {"bcc": {}, "hf": dict(ls="--", mfc="none", ms=5), "full": {}}
+
+
+def _curve_stats(df: pd.DataFrame, measure: str) -> pd.DataFrame:
+    """Mean, min and max of ``measure`` over the seeds of each value."""
+    g = df.groupby("value")[measure]
+    return pd.DataFrame({"mean": g.mean(), "lo": g.min(), "hi": g.max(),
+                         "n": g.count()}).reset_index()
+
+
+def _draw(ax, d: pd.DataFrame, measure: str, model: str, clip: float | None = None):
+    """One model's curve: the mean over seeds, their range shaded where there are
+    several, the value at 0 as a dotted line; values above ``clip`` at ``clip``."""
+    st = dict(MODEL_STYLE[model], **_LINE[model])
+    c = _curve_stats(d, measure)
+    nz = c[c.value != 0]
+    y = nz["mean"].to_numpy()
+    if clip is not None:
+        y = np.minimum(y, clip)
+    ax.plot(nz.value.abs(), y, ms=st.pop("ms", 3), lw=1, **st)
+    if (nz.n > 1).any():
+        lo, hi = nz.lo.to_numpy(), nz.hi.to_numpy()
+        if clip is not None:
+            lo, hi = np.minimum(lo, clip), np.minimum(hi, clip)
+        ax.fill_between(nz.value.abs(), lo, hi, color=MODEL_STYLE[model]["color"],
+                        alpha=0.2, lw=0)
+    zero = c[c.value == 0]["mean"]
+    if len(zero) and np.isfinite(zero.iloc[0]) and zero.iloc[0] > 0:
+        ax.axhline(min(zero.iloc[0], clip or np.inf), color=MODEL_STYLE[model]["color"],
+                   ls=":", lw=0.8)
+
+
 def _panel(ax, df: pd.DataFrame, quantity: str, param: str, models, noise: float) -> None:
     measure = _measure(quantity, param)
     for model in models:
@@ -82,61 +122,101 @@ def _panel(ax, df: pd.DataFrame, quantity: str, param: str, models, noise: float
                & (df.noise == noise)]
         if d.empty:
             continue
-        d = d.groupby("value", as_index=False)[measure].mean()
-        nz = d[d.value != 0]
-        st = MODEL_STYLE[model]
-        ax.plot(nz.value.abs(), nz[measure], ms=3, lw=1, **st)
-        zero = d[d.value == 0][measure]
-        if len(zero) and np.isfinite(zero.iloc[0]) and zero.iloc[0] > 0:
-            ax.axhline(zero.iloc[0], color=st["color"], ls=":", lw=0.8)
+        _draw(ax, d, measure, model)
     _log_axes(ax)
+    _min_span(ax, 100.0)
     sign = "-" if (df[df.param == param].value < 0).any() else ""
     ax.set_xlabel(f"{sign}{PARAM_LABEL[param]}" if sign else PARAM_LABEL[param])
     ax.set_ylabel(_ylabel(quantity, measure))
 
 
+def _min_span(ax, factor: float) -> None:
+    """Widen a log y-axis to span at least ``factor`` (autoscaling a nearly flat curve
+    to 1.15 .. 1.62e-4 makes "almost independent" look like strong dependence)."""
+    if ax.get_yscale() != "log":
+        return
+    lo, hi = ax.get_ylim()
+    if hi / lo < factor:
+        mid = np.sqrt(lo * hi)
+        ax.set_ylim(mid / np.sqrt(factor), mid * np.sqrt(factor))
+
+
+def setup_label(df: pd.DataFrame) -> str:
+    """The setup a sweep table was run under (``bench.setups``), read from the generator
+    and estimator settings its rows record: the one whose every entry they carry."""
+    import json
+
+    from .setups import SETUPS
+
+    gen = json.loads(df.generator.iloc[0]) if "generator" in df and len(df) else {}
+    est = json.loads(df.estimator.iloc[0]) if "estimator" in df and len(df) else {}
+
+    def same(a, b):
+        return (list(a) if isinstance(a, tuple) else a) == b
+
+    for name, st in SETUPS.items():
+        if (st.base or st.estimator) and all(same(v, gen.get(k)) for k, v in st.base.items()) \
+                and all(same(v, est.get(k)) for k, v in st.estimator.items()):
+            return f"{name} setup"
+    return "gridflow setup"
+
+
 def fig3(df: pd.DataFrame, label: str = ""):
-    """Errors of a1 (top) and a2 (bottom) against a1, a1x, a2, a2x; HF and full, noise-free."""
+    """Errors of a1 (top) and a2 (bottom) against a1, a1x, a2, a2x; HF and full, noise-free.
+    Every panel spans at least two decades; the 0.5 % of observation 1 is marked."""
     with plt.rc_context(STYLE):
         fig, axes = plt.subplots(2, 4, figsize=(10, 4.6), constrained_layout=True)
         for row, q in enumerate(("a1", "a2")):
             for col, p in enumerate(PARAMS):
                 _panel(axes[row, col], df, q, p, ("hf", "full"), 0.0)
+        axes[0, 0].axhline(0.005, color="0.4", ls="--", lw=0.8, label="0.5 % (obs. 1)")
         axes[0, 0].legend()
-        fig.suptitle("Fig. 3: brightness parameters, noise-free (dotted: value at 0)"
-                     + (f" [{label}]" if label else ""))
+        fig.suptitle("Fig. 3: brightness parameters, noise-free (dotted: value at 0; HF "
+                     "dashed, open markers)" + (f" [{label}]" if label else ""))
     return fig
 
 
 def fig4(df: pd.DataFrame, noise: float = 0.025, label: str = ""):
-    """Q_rel(U_Z) against a1, a1x, a2, a2x; three models; noise-free and noisy."""
+    """Q_rel(U_Z) against a1, a1x, a2, a2x; three models; noise-free and noisy on the same
+    y range per column (values above ``TOP`` at the top edge), the noisy curves the mean
+    over their seeds with the range shaded; the breakdown level 0.1 and the paper's BCC
+    breakdowns (|a2| ~ 0.1, |a2x| ~ 0.02) marked."""
     with plt.rc_context(STYLE):
-        fig, axes = plt.subplots(2, 4, figsize=(10, 4.6), constrained_layout=True)
+        fig, axes = plt.subplots(2, 4, figsize=(10, 4.8), constrained_layout=True,
+                                 sharey="col")
         for row, n in enumerate((0.0, noise)):
             for col, p in enumerate(PARAMS):
                 ax = axes[row, col]
                 for model in ("bcc", "hf", "full"):
                     d = df[(df.param == p) & (df.quantity == "Uz") & (df.model == model)
-                           & (df.noise == n)].groupby("value", as_index=False)["q_rel"].mean()
-                    nz = d[d.value != 0]
-                    ax.plot(nz.value.abs(), nz.q_rel, ms=3, lw=1, **MODEL_STYLE[model])
-                    zero = d[d.value == 0].q_rel
-                    if len(zero):
-                        ax.axhline(zero.iloc[0], color=MODEL_STYLE[model]["color"], ls=":", lw=0.8)
+                           & (df.noise == n)]
+                    if not d.empty:
+                        _draw(ax, d, "q_rel", model, clip=TOP)
                 _log_axes(ax)
+                ax.axhline(BREAK_LEVEL, color="0.4", ls="--", lw=0.8)
+                if p in PAPER_MARKS:
+                    ax.axvline(PAPER_MARKS[p], color="0.4", ls="-.", lw=0.8)
                 sign = "-" if (df[df.param == p].value < 0).any() else ""
                 ax.set_xlabel(f"{sign}{PARAM_LABEL[p]}")
                 ax.set_ylabel(r"$Q_{rel}$ of $U_Z$" + ("" if n == 0 else rf", $\sigma_n$={n}"))
+        for ax in axes[0]:
+            if ax.get_yscale() == "log":
+                ax.set_ylim(max(ax.get_ylim()[0], 1e-8), TOP * 1.5)
         axes[0, 0].legend()
+        seeds = df[df.noise == noise].groupby(["param", "value", "model", "quantity"]).size()
+        nseeds = int(seeds.min()) if len(seeds) else 0
         fig.suptitle(r"Fig. 4: relative error of $U_Z$; top noise-free, bottom "
-                     rf"$\sigma_n = {noise}$ (dotted: value at 0)" + (f" [{label}]" if label else ""))
+                     rf"$\sigma_n = {noise}$ (mean of {nseeds} seeds, range shaded); dotted: "
+                     r"value at 0; dashed grey: breakdown level 0.1; dash-dot: the paper's "
+                     rf"BCC breakdown; above {TOP:g} drawn at the top"
+                     + (f" [{label}]" if label else ""), fontsize=7)
     return fig
 
 
 def fig2(frames: list[np.ndarray], titles: list[str], caption: str):
-    """Central-camera images of a sequence, each on its own grey scale (the texture stays
-    visible however dark a frame is), and their intensity along the middle row on one
-    scale (the brightness change between the frames).
+    """Central-camera images of a sequence on one grey scale (so that the dimming between
+    them shows as it is), and their intensity along the middle row (the first frame
+    dashed, the last dotted with markers: they darken alike and would hide each other).
 
     Parameters
     ----------
@@ -149,22 +229,28 @@ def fig2(frames: list[np.ndarray], titles: list[str], caption: str):
                                  constrained_layout=True,
                                  gridspec_kw={"width_ratios": [1] * len(frames) + [1.6]})
         row = frames[0].shape[0] // 2
+        lo = min(float(np.min(f)) for f in frames)
+        hi = max(float(np.max(f)) for f in frames)
         for ax, img, title in zip(axes, frames, titles):
-            im = ax.imshow(img, cmap="gray", interpolation="nearest")
+            im = ax.imshow(img, cmap="gray", interpolation="nearest", vmin=lo, vmax=hi)
             ax.axhline(row, color="tab:orange", lw=0.8, ls="--")
-            ax.set_title(title)
+            ax.set_title(f"{title}\nrange {np.min(img):.2g} .. {np.max(img):.2g}")
             ax.set_xticks([])
             ax.set_yticks([])
             ax.grid(False)
-            fig.colorbar(im, ax=ax, shrink=0.8, location="bottom", pad=0.02)
+        fig.colorbar(im, ax=list(axes[:len(frames)]), shrink=0.8, location="bottom",
+                     pad=0.02, label="intensity (one scale for all the images)")
         prof = axes[-1]
-        for img, title in zip(frames, titles):
-            prof.plot(img[row], lw=1, label=title.split(",")[0])
+        styles = [dict(ls="--", lw=1.4), dict(ls="-", lw=1.0),
+                  dict(ls=":", lw=1.0, marker="o", ms=2, markevery=6)]
+        for i, (img, title) in enumerate(zip(frames, titles)):
+            st = styles[i] if len(frames) == 3 else {}
+            prof.plot(img[row], label=title.split(",")[0], **st)
         prof.set_xlabel("image column (middle row, dashed)")
         prof.set_ylabel("intensity")
         prof.legend(fontsize="small")
         prof.set_title("the brightness change")
-        fig.suptitle(caption + "; each image on its own grey scale")
+        fig.suptitle(caption)
     return fig
 
 
@@ -252,8 +338,8 @@ def draw_figures(out_dir, *, sweep: pd.DataFrame | None = None, fig2_too: bool =
     and/or Fig. 2, as ``fig3SUFFIX.png`` etc. in ``out_dir``; returns the paths written."""
     written = []
     if sweep is not None:
-        label = (", ".join(f"sweep {n}" for n in sweep["sweep"].unique())
-                 if "sweep" in sweep else "")
+        names = [f"sweep {n}" for n in sweep["sweep"].unique()] if "sweep" in sweep else []
+        label = ", ".join(names + [setup_label(sweep)])
         if "motion" in sweep and (sweep.motion == "affine").any():
             # a growth sweep: its own figure
             written += save(fig_growth(sweep, label=label), out_dir, "fig_growth" + suffix)

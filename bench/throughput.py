@@ -23,6 +23,10 @@ Sections (each prints its table):
     ``gridflow estimate`` as a user runs it (a fresh process: start, imports, load,
     estimate, save) on a tiny volume (the fixed cost) and at ``--cli-size`` against the
     baseline in this process on the same volume.
+``zoom``
+    What the zoom-blur correction costs: the fast path with and without it
+    (``zoom_correction``), interleaved, best wall and its CPU time of ``--repeat``
+    rounds, on the same volume, one model at a time and the three together.
 ``scaling``
     The fast path alone at each of ``--sizes``, each in a fresh process: time, pixels per
     second over the *interior* (pixels with a full window: the border is 46 % of a 256^2
@@ -51,7 +55,7 @@ import numpy as np
 from gridflow.estimator import MODELS, estimate
 from gridflow.generators import make_sinusoid
 
-SECTIONS = ("inprocess", "cli", "scaling")
+SECTIONS = ("inprocess", "cli", "scaling", "zoom")
 
 
 def _volume(size: int, dtype=np.float64):
@@ -112,6 +116,27 @@ def inprocess(size: int, models, repeat: int, affine=("full",)) -> list[dict]:
                          round_ratio=float(np.median([b[0] / f[0] for f, b in zip(fast, base)])),
                          fast_interior_kpx_s=n_int / fw / 1e3,
                          max_rel_diff=_max_rel_diff(ef, eb, sv.truth, eb.interior)))
+    return rows
+
+
+def zoom(size: int, models, repeat: int) -> list[dict]:
+    """The fast path with and without the zoom-blur correction, per model and for all
+    models together (``estimate_models``), interleaved rounds."""
+    from gridflow.estimator import estimate_models
+
+    sv = _volume(size)
+    estimate(sv.volume[..., :160, :160], sv.focal_length, sv.camera_spacing, model="full")
+    rows = []
+    for group in [(m,) for m in models] + [tuple(models)]:
+        times = {True: [], False: []}
+        for _ in range(repeat):
+            for zc in (False, True):
+                times[zc].append(_timed(lambda: estimate_models(
+                    sv.volume, sv.focal_length, sv.camera_spacing, models=group,
+                    zoom_correction=zc), 1))
+        off, on = (min(times[z], key=lambda r: r[0]) for z in (False, True))
+        rows.append(dict(models=",".join(group), off_wall=off[0], off_cpu=off[1],
+                         on_wall=on[0], on_cpu=on[1], ratio=on[0] / off[0]))
     return rows
 
 
@@ -226,6 +251,14 @@ def main(argv=None) -> int:
         print(f"| {r['size']}x{r['size']}, baseline in this process (wall; CPU "
               f"{r['base_cpu']:.1f}) | {r['base_wall']:.2f} |")
         print(f"| ratio baseline / CLI | **{r['ratio']:.1f}** |", flush=True)
+    if "zoom" in a.sections:
+        print(f"\nthe zoom-blur correction's cost, fast path, {a.size}x{a.size} ({a.repeat} "
+              "interleaved rounds; wall: best round, CPU: user + system of it)")
+        print("| models | without: wall s | CPU s | with: wall s | CPU s | wall ratio |")
+        print("|---|---|---|---|---|---|")
+        for r in zoom(a.size, a.models, a.repeat):
+            print(f"| {r['models']} | {r['off_wall']:.3f} | {r['off_cpu']:.3f} | "
+                  f"{r['on_wall']:.3f} | {r['on_cpu']:.3f} | **{r['ratio']:.2f}** |", flush=True)
     if "scaling" in a.sections and a.sizes:
         print("\nscaling, fast path, full model, float32 volume, one fresh process per size")
         print("| size | seconds | interior px | interior kpx/s | image kpx/s | volume MB | "

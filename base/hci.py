@@ -44,9 +44,16 @@ class HCIError(GridflowError):
 
 
 def is_hci_scene(folder) -> bool:
-    """Whether ``folder`` looks like an HCI scene (it holds ``input_Cam000.png``)."""
+    """Whether ``folder`` looks like an HCI scene: it holds ``input_Cam000.png``, or views
+    ``input_CamNNN.png`` and no ``grid.json`` (a scene missing its first view is then
+    refused by :func:`load_hci` naming what it found, not as a camera-grid folder without
+    a manifest)."""
     p = Path(folder)
-    return p.is_dir() and (p / "input_Cam000.png").is_file()
+    if not p.is_dir():
+        return False
+    if (p / "input_Cam000.png").is_file():
+        return True
+    return not (p / "grid.json").exists() and any(_VIEW.match(q.name) for q in p.iterdir())
 
 
 def read_pfm(path) -> np.ndarray:
@@ -182,8 +189,17 @@ def load_hci(folder, views: int | None = None) -> GridVolume:
     count = len(found)
     n = int(round(np.sqrt(count)))
     if count == 0 or n * n != count or n % 2 == 0 or sorted(found) != list(range(count)):
+        # the grid the views come closest to (the smallest odd square holding the highest
+        # index), and the files it lacks
+        top = max(found, default=-1) + 1
+        m = int(np.ceil(np.sqrt(max(top, 1))))
+        m += 1 - m % 2
+        missing = [f"input_Cam{i:03d}.png" for i in range(m * m) if i not in found]
+        lack = (f"; missing for a {m} x {m} grid: {', '.join(missing[:3])}"
+                + (f" and {len(missing) - 3} more" if len(missing) > 3 else "")
+                if missing else "")
         raise HCIError(f"{folder}: expected input_Cam000.png ... for an odd n x n grid of "
-                       f"views, found {count} views ({sorted(found)[:3]} ...)")
+                       f"views, found {count} views{lack}")
     use = n if views is None else int(views)
     if use % 2 == 0 or not 3 <= use <= n:
         raise HCIError(f"views must be odd, at least 3 and at most the grid's {n}, got {views}")

@@ -136,8 +136,7 @@ def estimate_shear_range(views: np.ndarray, *, filters: str = "matched5",
     chosen = None
     for k in ks:
         vk = v if k == 1 else _lowpass(v, 0.5 * k)[..., k // 2::k, k // 2::k]
-        e = estimate(np.ascontiguousarray(vk)[None], float(vk.shape[-1]), (1.0, 1.0),
-                     model="bcc", sigma=1.0, window=5, filters=filters, **_ROWS_AS_PAPER)
+        e = _bcc(np.ascontiguousarray(vk)[None], sigma=1.0, window=5, filters=filters)
         d = e["disparity"][e.interior]
         # beyond twice the filters' reach the estimator has failed (an occlusion edge,
         # aliasing), not seen a disparity
@@ -170,7 +169,12 @@ _REACH = 1.0
 # on the thin stripes (0.15 -> 0.16 %; there MSE x 100 fell 0.338 -> 0.181), measured with
 # python -m gridflow.bench.lightfield_study (the HCI development scene agreed: 7.89 ->
 # 9.13 %).  Its gains are in motion and brightness, which a light field does not have.
-_ROWS_AS_PAPER = {"zoom_correction": False}
+def _bcc(volume: np.ndarray, focal_length: float | None = None, **settings):
+    """The estimator on views of a light field, shape (1, n, m, H, W): model bcc, focal
+    length the image width unless given, unit camera spacing, the rows without the
+    zoom-blur correction."""
+    f = float(volume.shape[-1]) if focal_length is None else focal_length
+    return estimate(volume, f, (1.0, 1.0), model="bcc", zoom_correction=False, **settings)
 
 
 def shear(views: np.ndarray, s: int) -> np.ndarray:
@@ -427,22 +431,22 @@ def _subgrid_estimates(sv, subgrid, sigma, window, filters, lines):
     """
     n = sv.shape[0]
     W = sv.shape[-1]
-    kw = dict(model="bcc", sigma=sigma, window=window, filters=filters, **_ROWS_AS_PAPER)
+    kw = dict(focal_length=float(W), sigma=sigma, window=window, filters=filters)
     if not lines:
         h = subgrid // 2
         for rc, cc in _subgrid_centres(n, subgrid):
             sub = np.ascontiguousarray(sv[rc - h:rc + h + 1, cc - h:cc + h + 1])[None]
-            e = estimate(sub, float(W), (1.0, 1.0), **kw)
+            e = _bcc(sub, **kw)
             yield e["disparity"], e["model_error"], e.interior
         return
     cc = n // 2
     h = subgrid // 2
     for c in sorted({h, cc, n - 1 - h}):
         row = np.ascontiguousarray(sv[cc:cc + 1, c - h:c + h + 1])[None]
-        e = estimate(row, float(W), (1.0, 1.0), **kw)
+        e = _bcc(row, **kw)
         yield e["disparity"], e["model_error"], e.interior
         col = np.ascontiguousarray(sv[c - h:c + h + 1, cc].transpose(0, 2, 1))[None, None]
-        e = estimate(col, float(W), (1.0, 1.0), **kw)
+        e = _bcc(col, **kw)
         yield e["disparity"].T, e["model_error"].T, e.interior.T
 
 
@@ -505,9 +509,8 @@ def _select_coarse(v, lo, sigma, window, filters, coarse_sigma, progress=None) -
     n = v.shape[0]
     H, W = v.shape[-2:]
     win2 = 2 * (window // 2) * 2 + 1
-    coarse = estimate(_lowpass(v, coarse_sigma)[None], float(W), (1.0, 1.0), model="bcc",
-                      sigma=2 * sigma, window=win2, filters=filters,
-                      **_ROWS_AS_PAPER)["disparity"]
+    coarse = _bcc(_lowpass(v, coarse_sigma)[None], sigma=2 * sigma, window=win2,
+                  filters=filters)["disparity"]
     # the coarse window reaches further: near the border take the nearest coarse value
     bad = ~np.isfinite(coarse)
     if bad.any() and not bad.all():
@@ -521,8 +524,7 @@ def _select_coarse(v, lo, sigma, window, filters, coarse_sigma, progress=None) -
     D = np.full((lo.size, H, W), np.nan)
     E = np.full((lo.size, H, W), np.inf)
     for k, s in enumerate(lo):
-        e = estimate(shear(v, int(s))[None], float(W), (1.0, 1.0), model="bcc", sigma=sigma,
-                     window=window, filters=filters, **_ROWS_AS_PAPER)
+        e = _bcc(shear(v, int(s))[None], sigma=sigma, window=window, filters=filters)
         D[k], E[k] = _admissible(e["disparity"], e["model_error"], e.interior, int(s),
                                  abs(int(s)) * (n // 2))
         if progress is not None:

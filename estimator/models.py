@@ -36,8 +36,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["ROWS", "ALL_ROWS", "ZOOM_ROWS", "ZOOM_ROW_SIGNALS", "zoom_rows", "MODELS", "MOTIONS", "BRIGHTNESS_OUTPUTS", "Model",
-           "get_model", "covering_rows"]
+__all__ = ["ROWS", "ALL_ROWS", "ZOOM_ROWS", "ZOOM_ROW_SIGNALS", "zoom_rows", "MODELS",
+           "MOTIONS", "BRIGHTNESS_OUTPUTS", "Model", "get_model", "covering_rows"]
 
 # name -> (base signal, temporal power, spatial monomial)
 ROWS: dict[str, tuple[str, int, str]] = {
@@ -60,19 +60,17 @@ ALL_ROWS = tuple(ROWS)
 # prefiltered signal *plus* the prefilter's first moment applied to the signal.  That
 # second part is a row of its own base signal (no monomial) whose parameter is the
 # corrected row's: the corrected row is their sum, J = T J_ext T^T.
-ZOOM_ROWS: dict[str, str] = {
-    "IxDx": "zIxDx", "IxDy": "zIxDy", "IyDx": "zIyDx", "IyDy": "zIyDy",
-    "IDx": "zIDx", "IDy": "zIDy", "tIDx": "ztIDx", "tIDy": "ztIDy",
-    "tIxDx": "ztIxDx", "tIxDy": "ztIxDy", "tIyDx": "ztIyDx", "tIyDy": "ztIyDy",
-}
-# their base signals (estimator.signals.ZOOM_SIGNALS makes them) and temporal powers
+# The correction's base signal of a row, by the row's (base signal, monomial):
+# estimator.signals.ZOOM_SIGNALS makes them.  A row ``r`` with one gets the correction row
+# ``"z" + r`` of that signal and the same temporal power.
+_ZOOM_SIGNAL_OF = {("x", "x"): "zxx", ("x", "y"): "zxy", ("y", "x"): "zyx",
+                   ("y", "y"): "zyy", ("I", "x"): "zIx", ("I", "y"): "zIy"}
+ZOOM_ROWS: dict[str, str] = {r: "z" + r for r, (sig, _, mono) in ROWS.items()
+                             if (sig, mono) in _ZOOM_SIGNAL_OF}
+# the correction rows' (base signal, temporal power, monomial)
 ZOOM_ROW_SIGNALS: dict[str, tuple[str, int, str]] = {
-    "zIxDx": ("zxx", 0, ""), "zIxDy": ("zxy", 0, ""), "zIyDx": ("zyx", 0, ""),
-    "zIyDy": ("zyy", 0, ""), "zIDx": ("zIx", 0, ""), "zIDy": ("zIy", 0, ""),
-    "ztIDx": ("zIx", 1, ""), "ztIDy": ("zIy", 1, ""),
-    "ztIxDx": ("zxx", 1, ""), "ztIxDy": ("zxy", 1, ""), "ztIyDx": ("zyx", 1, ""),
-    "ztIyDy": ("zyy", 1, ""),
-}
+    "z" + r: (_ZOOM_SIGNAL_OF[(sig, mono)], tpow, "")
+    for r, (sig, tpow, mono) in ROWS.items() if (sig, mono) in _ZOOM_SIGNAL_OF}
 
 # Motion models: the geometric rows of d (the fixed rows I_sx, I_sy, I_t included) and
 # the quantities their parameters give.

@@ -206,8 +206,8 @@ def spatial_jobs(ct: dict[str, np.ndarray], spatial: FilterPair,
     Returns
     -------
     dict of str to (ndarray (F, h, W), kx, ky)
-        ``"x", "y", "I", "sx"`` and, where ``ct`` has them, ``"t", "sy"``, then ``extra``: the source and
-        the correlation kernels along x and y.  Filtered (:func:`separable`), rows within
+        ``"x", "y", "I", "sx"`` and, where ``ct`` has them, ``"t", "sy"``, then
+        ``extra``: the source and the correlation kernels along x and y.  Filtered (:func:`separable`), rows within
         ``spatial.radius`` of a band's edges are not valid.
     """
     p, d = spatial.prefilter, spatial.derivative

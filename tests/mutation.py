@@ -182,8 +182,8 @@ MUTANTS = [
            "    growth = float(np.trace(G))",
            (T + "test_affine.py::test_generator_truths_are_the_deformation_rates",),
            "growth as the volume divergence, not the surface's"),
-    Mutant("claims-growth-stable", "bench/claims.py", "Part(\"affine model stable\", bool((af < STABLE).all()), core=True)]\n    where = f\"from growth",
-           "Part(\"affine model stable\", bool((af < BREAK).all()), core=True)]\n    where = f\"from growth",
+    Mutant("claims-growth-stable", "bench/claims.py", "Part(\"affine model stable\", bool((af < STABLE).all()), core=True)]\n    where = f\"from {param}",
+           "Part(\"affine model stable\", bool((af < BREAK).all()), core=True)]\n    where = f\"from {param}",
            (T + "test_claims.py",), "the affine model's U_Z \"stable\" up to the breakdown level"),
     # --- generators ------------------------------------------------------------------------
     Mutant("truth-a2-per-frame", "generators/sinusoid.py",

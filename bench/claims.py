@@ -47,7 +47,7 @@ import pandas as pd
 from gridflow.estimator import MODELS
 
 __all__ = ["check_claims", "claims_markdown", "render_checks", "write_claims", "CLAIMS",
-           "missing_data", "breakdown"]
+           "missing_data", "breakdown", "paper_terms", "paper_terms_markdown"]
 
 
 BREAK = 0.1
@@ -77,12 +77,18 @@ class Part:
         Non-empty when the part is true by construction of the measurement (not of the
         estimate): why, and the reading that would make it a real test.  Such a part is
         reported but not counted.
+    paper, measured : str
+        For a part that reads one of the paper's quantitative statements: the paper's
+        words or number, and gridflow's number for it (the paper-terms table,
+        :func:`paper_terms`).  Empty for parts the table leaves out.
     """
 
     label: str
     ok: bool
     core: bool = False
     construction: str = ""
+    paper: str = ""
+    measured: str = ""
 
 
 @dataclass
@@ -90,12 +96,14 @@ class Result:
     verdict: str
     numbers: str
     parts: str = ""
+    terms: tuple = ()
 
 
 def _result(parts: list[Part], numbers: str) -> Result:
-    """The verdict of ``parts`` (:func:`_verdict`) with the parts written out."""
+    """The verdict of ``parts`` (:func:`_verdict`) with the parts written out; the parts
+    that read a statement of the paper are kept as its terms."""
     verdict, text = _verdict(parts)
-    return Result(verdict, numbers, text)
+    return Result(verdict, numbers, text, tuple(p for p in parts if p.paper))
 
 
 def _rows(df, model, quantity, param, noise) -> pd.DataFrame:
@@ -237,9 +245,12 @@ def obs1(df) -> Result:
     ok_from = next((v for v in s.index if v > 0 and (s[(s.index >= v) & (s.index < 1)]
                                                        < 0.0025).all()), None)
     parts = [Part("below 0.25 % for 0.1 <= a1 < 1", bool(len(mid) and (mid < 0.0025).all()),
-                  core=True),
+                  core=True, paper="Q_rel(a1) well below 0.5 % for a1 < 1",
+                  measured=f"max {_fmt(mid.max())} for 0.1 <= a1 < 1"),
              Part("beyond 1 higher, at most 5 %",
-                  bool(len(above) and above.max() > mid.max() and above.max() <= 0.05))]
+                  bool(len(above) and above.max() > mid.max() and above.max() <= 0.05),
+                  paper="beyond a1 = 1 rising moderately",
+                  measured=f"{_fmt(above.max())} at a1 = {_fmt(np.abs(above.index).max())}")]
     return _result(parts,
                   f"Q_rel(a1), full: {_format_curve(s, 8)}; below 0.25 % from a1 = {ok_from} on; "
                   f"max beyond 1: {_fmt(above.max())}")
@@ -250,7 +261,9 @@ def obs2(df) -> Result:
     every non-zero value."""
     s = _curve(df, "full", "a2", "a2")
     k = _slope(s)
-    return _result([Part("log-log slope 0.8-1.2", bool(SLOPE[0] <= k <= SLOPE[1]), core=True)],
+    return _result([Part("log-log slope 0.8-1.2", bool(SLOPE[0] <= k <= SLOPE[1]), core=True,
+                         paper="Q(a2) grows linearly with |a2| (log-log slope 1)",
+                         measured=f"slope {k:.2f}")],
                   f"Q_rel(a2), full: {_format_curve(s, 6)}; log-log slope {k:.2f}")
 
 
@@ -267,9 +280,14 @@ def obs3(df) -> Result:
     xm = _x_mean(df)
     why = _global_reference("a1x")
     built = [why if _is_reference_mismatch(c, xm) else "" for c in (hf, full)]
-    parts = [Part("strong cross-talk, HF", strong[0], core=True, construction=built[0]),
-             Part("strong cross-talk, full", strong[1], core=True, construction=built[1]),
-             Part("stronger for HF", worse)]
+    grow = [f"x{_fmt(c.iloc[-1] / c.iloc[0])} from a1x = 0 to {_fmt(abs(c.index[-1]))}"
+            for c in (hf, full)]
+    parts = [Part("strong cross-talk, HF", strong[0], core=True, construction=built[0],
+                  paper="severe cross-talk a1x -> a1 (HF)", measured=grow[0]),
+             Part("strong cross-talk, full", strong[1], core=True, construction=built[1],
+                  paper="severe cross-talk a1x -> a1 (full)", measured=grow[1]),
+             Part("stronger for HF", worse, paper="more severe for HF (ratio > 1)",
+                  measured=f"HF/full {_fmt(r.min())}..{_fmt(r.max())}")]
     return _result(parts,
                   f"Q(a1) vs a1x, HF: {_format_curve(hf, 5)}; full: {_format_curve(full, 5)}; strong "
                   f"cross-talk HF/full: {_yn(strong[0])}/{_yn(strong[1])}; HF/full ratio "
@@ -294,9 +312,12 @@ def obs4(df) -> Result:
     parts = [Part("cross-talk present, HF", present[0], construction=built[0]),
              Part("cross-talk present, full", present[1], construction=built[1]),
              Part("HF's a2 error within a factor 2 of full's", same, core=True,
-                  construction=why if all(built) else ""),
+                  construction=why if all(built) else "",
+                  paper="a2x -> a2 cross-talk the same for HF and full (ratio 1)",
+                  measured=f"HF/full {_fmt(r.min())}..{_fmt(r.max())}"),
              Part("HF's U_Z error within a factor 2 of full's (a2x does not help U_Z)",
-                  uz_same)]
+                  uz_same, paper="modelling a2x of no advantage: U_Z (ratio 1)",
+                  measured=f"HF/full {_fmt(ur.min())}..{_fmt(ur.max())}")]
     return _result(parts,
                   f"Q(a2) HF/full vs a2x: {_format_curve(r, 6)}; cross-talk present HF/full: "
                   f"{_yn(present[0])}/{_yn(present[1])}; Q_rel(U_Z) HF/full vs a2x: "
@@ -316,7 +337,10 @@ def obs5(df) -> Result:
             ok = ~_broken(df, model, p).reindex(s.index, fill_value=False)
             s = s[ok]
             leak = float((s - s.iloc[0]).abs().max() / (np.abs(s.index).max() * scale))
-            checks.append(Part(f"{model} {q} independent of {p}", bool(leak < LEAK)))
+            checks.append(Part(f"{model} {q} independent of {p}", bool(leak < LEAK),
+                               paper=f"{q} almost independent of {p} ({model})"
+                               if model == "full" else "",
+                               measured=f"error growth {leak:.1e} of the perturbation"))
             cut = "" if ok.all() else f" (up to {np.abs(s.index).max():g})"
             parts.append(f"{model} {q}<-{p}: {leak:.1e}{cut}")
     return _result(checks, "leak (error growth / perturbation): " + ", ".join(parts))
@@ -331,7 +355,9 @@ def obs6(df) -> Result:
     top = r[np.abs(r.index) >= np.abs(r.index).max() / 10]
     ok = bool(((top >= ORDERS[0]) & (top <= ORDERS[1])).all())
     return _result([Part("HF/full a2 error 10-10^2.5 over the top decade of a1x", ok,
-                         core=True)],
+                         core=True, paper="a2's error 1-2 orders smaller when a1x is "
+                         "modelled (HF/full 10-100)",
+                         measured=f"HF/full {_fmt(top.min())}..{_fmt(top.max())}")],
                   f"Q(a2) HF/full vs a1x: {_format_curve(r, 8)}; top decade "
                   f"{_fmt(top.min())}..{_fmt(top.max())}")
 
@@ -346,9 +372,16 @@ def obs7(df) -> Result:
     small = bool((h[h.index <= 0.1] < STABLE).all() and (f[f.index <= 0.1] < STABLE).all())
     weak = not (_broken(df, "hf", "a1").any() or _broken(df, "full", "a1").any()) and \
         bool((h < BREAK).all() and (f < BREAK).all())
-    parts = [Part("BCC broken from a1 = 0.01", bool(bcc_ok), core=True),
-             Part("HF, full below 0.01 for a1 <= 0.1", small, core=True),
-             Part("HF, full never break down", bool(weak))]
+    parts = [Part("BCC broken from a1 = 0.01", bool(bcc_ok), core=True,
+                  paper="BCC's U_Z breaks down as soon as a1 > 0",
+                  measured=f"breaks down in a1 ({lo:g}, {hi:g}]"),
+             Part("HF, full below 0.01 for a1 <= 0.1", small, core=True,
+                  paper="HF, full: U_Z does not react on small a1",
+                  measured=f"max {_fmt(max(h[h.index <= 0.1].max(), f[f.index <= 0.1].max()))}"
+                  " for a1 <= 0.1"),
+             Part("HF, full never break down", bool(weak),
+                  paper="HF, full: only weakly for larger a1",
+                  measured=f"max {_fmt(max(h.max(), f.max()))}")]
     return _result(parts,
                   f"BCC breaks down between a1 = {lo:g} and {hi:g}; Q_rel(U_Z) HF/full "
                   f"max for a1 <= 0.1: {_fmt(h[h.index <= 0.1].max())}/"
@@ -360,9 +393,13 @@ def obs8(df) -> Result:
     every a1x, while BCC and HF break down within the sweep and stay broken beyond."""
     f = _curve(df, "full", "Uz", "a1x")
     (blo, bhi), (hlo, hhi) = breakdown(df, "bcc", "a1x"), breakdown(df, "hf", "a1x")
-    checks = [Part("full below 0.01 at every a1x", bool((f < STABLE).all()), core=True),
-              Part("BCC breaks down", math.isfinite(bhi)),
-              Part("HF breaks down", math.isfinite(hhi))]
+    checks = [Part("full below 0.01 at every a1x", bool((f < STABLE).all()), core=True,
+                   paper="with a1x only the full model's U_Z remains stable",
+                   measured=f"full's max {_fmt(f.max())}"),
+              Part("BCC breaks down", math.isfinite(bhi), paper="BCC: severe problems",
+                   measured=f"breaks down in a1x ({blo:g}, {bhi:g}]"),
+              Part("HF breaks down", math.isfinite(hhi), paper="HF: severe problems",
+                   measured=f"breaks down in a1x ({hlo:g}, {hhi:g}]")]
     return _result(checks,
                   f"full's max Q_rel(U_Z) {_fmt(f.max())}; BCC breaks down between a1x = "
                   f"{blo:g} and {bhi:g}, HF between {hlo:g} and {hhi:g}")
@@ -382,17 +419,25 @@ def obs9(df) -> Result:
     common = (lx >= la.min()) & (lx <= la.max())
     ratio = np.exp(np.interp(lx[common], la, np.log(a.to_numpy()))) / x.to_numpy()[common]
     similar = bool(common.any() and ((ratio >= 1 / FACTOR) & (ratio <= FACTOR)).all())
-    agree = []
+    agree, spread = [], []
     for p in ("a2", "a2x"):
         first = [_curve(df, m, "Uz", p).iloc[1] for m in ("bcc", "hf", "full")]
         agree.append(max(first) <= FACTOR * min(first))
+        spread.append(f"largest/smallest of the three {_fmt(max(first) / min(first))}")
     (alo, ahi), (xlo, xhi) = breakdown(df, "bcc", "a2"), breakdown(df, "bcc", "a2x")
     near = [_near(alo, ahi, 0.1), _near(xlo, xhi, 0.02)]
-    parts = [Part("a2 and a2x cause similar U_Z errors", similar),
-             Part("models agree at the smallest |a2|", bool(agree[0])),
-             Part("models agree at the smallest |a2x|", bool(agree[1])),
-             Part("BCC breaks down at |a2| ~ 0.1", bool(near[0]), core=True),
-             Part("BCC breaks down at |a2x| ~ 0.02", bool(near[1]), core=True)]
+    rng = (f"ratio {_fmt(ratio.min())}..{_fmt(ratio.max())}" if common.any()
+           else "not comparable")
+    parts = [Part("a2 and a2x cause similar U_Z errors", similar,
+                  paper="a2 and a2x cause similar U_Z errors", measured=rng),
+             Part("models agree at the smallest |a2|", bool(agree[0]),
+                  paper="all models the same for small |a2|", measured=spread[0]),
+             Part("models agree at the smallest |a2x|", bool(agree[1]),
+                  paper="all models the same for small |a2x|", measured=spread[1]),
+             Part("BCC breaks down at |a2| ~ 0.1", bool(near[0]), core=True,
+                  paper="BCC breaks down at |a2| ≈ 0.1", measured=f"in ({alo:g}, {ahi:g}]"),
+             Part("BCC breaks down at |a2x| ~ 0.02", bool(near[1]), core=True,
+                  paper="BCC breaks down at |a2x| ≈ 0.02", measured=f"in ({xlo:g}, {xhi:g}]")]
     return _result(parts,
                   f"full's U_Z error under a2x vs a2 at the same brightness change "
                   f"(mean |X| = {xm:.2g}): ratio {_fmt(ratio.min()) if common.any() else '-'}.."
@@ -434,7 +479,7 @@ def obs10(df) -> Result:
                 same.append(ok)
                 if not ok:
                     changed.append(f"{m} {p}={abs(v):g}: {_fmt(c0[v])} -> {_fmt(c1[v])}")
-    small, parts = [], []
+    small, parts, rise = [], [], []
     seeds = 0
     for p, vmax in (("a1", 0.02), ("a1x", 0.002)):
         f0, f1 = _curve(df, "full", "Uz", p, 0.0), _curve(df, "full", "Uz", p, n)
@@ -443,12 +488,19 @@ def obs10(df) -> Result:
         small.append(bool((f0[sel] < STABLE / 2).all() and (f1[sel] >= 0.1 / FACTOR).all()
                           and (f1[sel] <= 0.1 * FACTOR).all()))
         sp = spread.reindex(f0.index[sel]).max()
+        rise.append(f"{_fmt(f0[sel].max())} -> {_fmt(f1[sel].min())}..{_fmt(f1[sel].max())}")
         parts.append(f"{p} <= {vmax:g}: full {_fmt(f0[sel].max())} -> "
                      f"{_fmt(f1[sel].min())}..{_fmt(f1[sel].max())} (seed spread "
                      f"{sp:.0%})")
-    checks = [Part("largest values unchanged by noise", all(same)),
-              Part("small a1: U_Z error rises to nearly 0.1", small[0], core=True),
-              Part("small a1x: U_Z error rises to nearly 0.1", small[1], core=True)]
+    checks = [Part("largest values unchanged by noise", all(same),
+                   paper="noise: large values' U_Z errors unchanged",
+                   measured=f"{sum(same)}/{len(same)} within x{IDENTICAL:g}"),
+              Part("small a1: U_Z error rises to nearly 0.1", small[0], core=True,
+                   paper="noise, a1 small: U_Z error from well below 0.01 to nearly 0.1",
+                   measured=rise[0]),
+              Part("small a1x: U_Z error rises to nearly 0.1", small[1], core=True,
+                   paper="noise, a1x small: U_Z error from well below 0.01 to nearly 0.1",
+                   measured=rise[1])]
     return _result(checks,
                    f"largest values unchanged by noise: {sum(same)}/{len(same)}"
                    + (f" (changed: {'; '.join(changed)})" if changed else "")
@@ -575,7 +627,9 @@ def is_growth_sweep(df: pd.DataFrame) -> bool:
 
 
 def check_claims(df: pd.DataFrame) -> pd.DataFrame:
-    """Evaluate every observation; returns a table ``id, observation, verdict, numbers``.
+    """Evaluate every observation; returns a table ``id, observation, verdict, parts,
+    numbers, terms`` (``terms``: the :class:`Part` objects that read a statement of the
+    paper, for :func:`paper_terms`).
 
     A sweep of the affine motion model is checked against :data:`GROWTH_CLAIMS`, any
     other against the paper's observations.  An observation whose data the sweep does
@@ -593,13 +647,13 @@ def check_claims(df: pd.DataFrame) -> pd.DataFrame:
                                          f"model, both motions, 0 and {MIN_VALUES} other "
                                          f"noise-free values on the {p} axis")
             rows.append({"id": cid, "observation": text, "verdict": r.verdict,
-                         "parts": r.parts, "numbers": r.numbers})
+                         "parts": r.parts, "numbers": r.numbers, "terms": r.terms})
         return pd.DataFrame(rows)
     for cid, text, fn in CLAIMS:
         why = missing_data(df, cid)
         r = Result("not tested", f"the sweep lacks its data: {why}") if why else fn(df)
         rows.append({"id": cid, "observation": text, "verdict": r.verdict, "parts": r.parts,
-                     "numbers": r.numbers})
+                     "numbers": r.numbers, "terms": r.terms})
     return pd.DataFrame(rows)
 
 
@@ -611,6 +665,55 @@ def claims_markdown(table: pd.DataFrame, source: str) -> str:
     for r in table.itertuples():
         cells = [str(c).replace("|", "\\|") for c in (r.observation, r.parts, r.numbers)]
         lines.append(f"| {r.id} | {cells[0]} | **{r.verdict}** | {cells[1]} | {cells[2]} |")
+    return "\n".join(lines)
+
+
+def _term_status(p: Part) -> str:
+    if p.construction:
+        return "true by construction"
+    return "holds" if p.ok else "does not hold"
+
+
+def paper_terms(tables: dict[str, pd.DataFrame]) -> pd.DataFrame:
+    """The paper's quantitative statements side by side under several setups.
+
+    Parameters
+    ----------
+    tables : dict of str to DataFrame
+        Setup name to :func:`check_claims` table (of the paper's observations).
+
+    Returns
+    -------
+    DataFrame
+        One row per statement (``id``, ``statement``), then per setup ``<name>`` (gridflow's
+        number) and ``<name> verdict`` (``holds``, ``does not hold``, ``true by
+        construction`` or ``not tested``).
+    """
+    rows: dict[tuple[str, str], dict] = {}
+    for name, table in tables.items():
+        for r in table.itertuples():
+            for p in r.terms:
+                row = rows.setdefault((r.id, p.paper), {"id": r.id, "statement": p.paper})
+                row[name] = p.measured
+                row[f"{name} verdict"] = _term_status(p)
+    out = pd.DataFrame(list(rows.values()))
+    for name in tables:
+        for col, empty in ((name, ""), (f"{name} verdict", "not tested")):
+            out[col] = out[col].fillna(empty) if col in out else empty
+    return out
+
+
+def paper_terms_markdown(terms: pd.DataFrame, setups: list[str], source: str) -> str:
+    """:func:`paper_terms` as a markdown block."""
+    head = ["#", "the paper"] + [f"{s}" for s in setups]
+    lines = [f"Made by `gridflow claims {source} --write-terms ...`: each quantitative "
+             "statement of the paper's Sec. 4.1, and gridflow's number for it under each "
+             "setup with the sub-check's verdict (thresholds: `bench/claims.py`).", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in terms.to_dict("records"):
+        cells = [r["id"], r["statement"]] + [f"{r[s]} (**{r[s + ' verdict']}**)"
+                                              for s in setups]
+        lines.append("| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |")
     return "\n".join(lines)
 
 

@@ -250,26 +250,52 @@ def cmd_figures(a) -> int:
 
 
 def cmd_claims(a) -> int:
-    from gridflow.io import check_output
+    from gridflow.io import atomic_write, check_output
 
-    from .claims import check_claims, write_claims
+    from .claims import check_claims, paper_terms, paper_terms_markdown, write_claims
+    from .figures import setup_label
+    from .markdown import rewrite_block
     from .sweep import read_sweep_csv
 
     if a.write_csv:
-        check_output(a.write_csv, suffixes=".csv", inputs=[a.csv], what="--write-csv")
+        if len(a.csv) > 1:
+            raise ValueError("--write-csv takes the verdicts of one sweep; got "
+                             f"{len(a.csv)} sweep CSVs (use --write-terms to compare them)")
+        check_output(a.write_csv, suffixes=".csv", inputs=a.csv, what="--write-csv")
+    if a.write_terms:
+        check_output(a.write_terms, suffixes=".csv", inputs=a.csv, what="--write-terms")
     if a.write_doc:
-        check_output(a.write_doc, suffixes=".md", inputs=[a.csv], what="--write-doc")
-    df = read_sweep_csv(a.csv)
-    table = check_claims(df)
-    print(table.to_string(index=False, columns=["id", "verdict", "parts", "numbers"],
-                          max_colwidth=110))
-    if a.write_doc or a.write_csv:
-        names = df["sweep"].unique() if "sweep" in df else []
-        tag = f"claims:{names[0]}" if len(names) == 1 else "claims"
-        write_claims(table, doc=a.write_doc, csv=a.write_csv, source=a.csv, tag=tag)
-        for p in (a.write_doc, a.write_csv):
-            if p:
-                print(f"wrote {p}")
+        check_output(a.write_doc, suffixes=".md", inputs=a.csv, what="--write-doc")
+    tables = {}
+    for path in a.csv:
+        df = read_sweep_csv(path)
+        table = check_claims(df)
+        label = setup_label(df).removesuffix(" setup")
+        if label in tables:
+            raise ValueError(f"{path}: a second sweep of the {label} setup; --write-terms "
+                             "compares one sweep per setup")
+        tables[label] = table
+        print(f"{path} ({label} setup):")
+        print(table.to_string(index=False, columns=["id", "verdict", "parts", "numbers"],
+                              max_colwidth=110))
+        if a.write_doc or a.write_csv:
+            names = df["sweep"].unique() if "sweep" in df else []
+            tag = f"claims:{names[0]}" if len(names) == 1 else "claims"
+            write_claims(table, doc=a.write_doc, csv=a.write_csv, source=path, tag=tag)
+    if a.write_terms or (a.write_doc and len(a.csv) > 1):
+        terms = paper_terms(tables)
+        if terms.empty:
+            raise ValueError("--write-terms: none of the sweeps tests the paper's "
+                             "observations (a growth sweep has no paper terms)")
+        if a.write_terms:
+            with atomic_write(a.write_terms, "w") as fh:
+                terms.to_csv(fh, index=False)
+        if a.write_doc:
+            rewrite_block(a.write_doc, "paper-terms",
+                          paper_terms_markdown(terms, list(tables), " ".join(a.csv)))
+    for p in (a.write_doc, a.write_csv, a.write_terms):
+        if p:
+            print(f"wrote {p}")
     return 0
 
 
@@ -500,9 +526,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_peers)
 
     p = sub.add_parser("claims", help="check the paper's observations 1-10 on a sweep CSV")
-    p.add_argument("csv", help="sweep CSV (e.g. results/sweep_paper.csv)")
-    p.add_argument("--write-doc", help="markdown file whose claims section to rewrite")
-    p.add_argument("--write-csv", help="CSV of verdicts to write")
+    p.add_argument("csv", nargs="+", help="sweep CSV (e.g. results/sweep_paper.csv); with "
+                   "several (one per setup), the paper's statements side by side")
+    p.add_argument("--write-doc", help="markdown file whose claims sections to rewrite "
+                   "(and, with several sweeps, its paper-terms table)")
+    p.add_argument("--write-csv", help="CSV of verdicts to write (one sweep)")
+    p.add_argument("--write-terms", metavar="CSV", help="CSV of the paper's quantitative "
+                   "statements with gridflow's number for each under each sweep's setup")
     p.set_defaults(func=cmd_claims)
     return ap
 

@@ -1,0 +1,124 @@
+"""The documentation's numbers agree with ``results/``.
+
+``docs/reproduction.md`` states results in blocks that the commands making them rewrite
+(``bench/markdown.py``).  These tests regenerate each block from the committed CSVs and
+compare it with the text, so a number in the docs that disagrees with ``results/`` (a
+block edited by hand, a CSV regenerated without its doc, a checker changed without its
+results) fails here; the claims CSVs and the paper-terms CSV are regenerated from the
+sweeps the same way.  The prose outside the blocks that quotes the shipped sweeps is
+checked against them value by value (:func:`test_zoom_table_agrees_with_the_sweeps`).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from gridflow.bench.claims import (check_claims, claims_markdown, paper_terms,
+                                   paper_terms_markdown, render_checks, GROWTH_CLAIMS)
+from gridflow.bench.cube_experiment import cube_markdown, observation11
+from gridflow.bench.markdown import replace_block
+from gridflow.bench.sweep import read_sweep_csv
+
+ROOT = Path(__file__).resolve().parents[1]
+DOC = ROOT / "docs" / "reproduction.md"
+RESULTS = ROOT / "results"
+SWEEPS = {"paper": "sweep_paper.csv", "paper_setup": "sweep_paper_setup.csv",
+          "growth": "sweep_growth.csv"}
+CLAIMS_CSV = {"paper": "claims.csv", "paper_setup": "claims_paper_setup.csv",
+              "growth": "claims_growth.csv"}
+
+
+def block(tag: str, text: str | None = None) -> str:
+    text = DOC.read_text() if text is None else text
+    start, end = f"<!-- {tag}:start -->", f"<!-- {tag}:end -->"
+    assert start in text and end in text, f"docs/reproduction.md has no {tag} block"
+    return text[text.index(start) + len(start):text.index(end)].strip()
+
+
+@pytest.fixture(scope="module")
+def claims():
+    return {name: check_claims(read_sweep_csv(RESULTS / csv)) for name, csv in SWEEPS.items()}
+
+
+@pytest.mark.parametrize("name", list(SWEEPS))
+def test_claims_blocks_agree_with_the_sweeps(claims, name):
+    want = claims_markdown(claims[name], f"results/{SWEEPS[name]}")
+    assert block(f"claims:{name}") == want
+
+
+@pytest.mark.parametrize("name", list(SWEEPS))
+def test_claims_csvs_agree_with_the_sweeps(claims, name):
+    stored = pd.read_csv(RESULTS / CLAIMS_CSV[name], dtype=str, keep_default_na=False)
+    fresh = claims[name][["id", "verdict", "parts", "numbers"]].astype(str)
+    pd.testing.assert_frame_equal(stored.reset_index(drop=True), fresh.reset_index(drop=True))
+
+
+def test_check_descriptions_agree_with_the_checker():
+    assert block("claims-checks") == render_checks()
+    assert block("claims-checks-growth") == render_checks(GROWTH_CLAIMS)
+
+
+def test_paper_terms_agree_with_the_sweeps(claims):
+    tables = {"gridflow": claims["paper"], "paper": claims["paper_setup"]}
+    terms = paper_terms(tables)
+    stored = pd.read_csv(RESULTS / "paper_terms.csv", dtype=str, keep_default_na=False)
+    pd.testing.assert_frame_equal(stored, terms.astype(str))
+    src = f"results/{SWEEPS['paper']} results/{SWEEPS['paper_setup']}"
+    assert block("paper-terms") == paper_terms_markdown(terms, list(tables), src)
+
+
+def test_cube_block_agrees_with_cube_csv():
+    table = pd.read_csv(RESULTS / "cube.csv")
+    text = block("cube")
+    source = re.match(r"Made by `gridflow cube` from (.*) \(`results/cube\.csv`\)\.", text)
+    assert source, "the cube block does not name its source"
+    assert text == cube_markdown(table, observation11(table), source.group(1))
+
+
+def test_a_stale_block_is_caught(claims):
+    """The comparison can fail: one number changed in a regenerated block differs."""
+    good = claims_markdown(claims["paper"], "results/sweep_paper.csv")
+    text = replace_block("", "claims:paper", good.replace("0.0054", "0.0055", 1))
+    assert "0.0054" in good and block("claims:paper", text) != good
+
+
+# --- prose outside the blocks ----------------------------------------------------------
+
+
+def _q(df, model, quantity, param, value):
+    d = df[(df.model == model) & (df.quantity == quantity) & (df.param == param)
+           & (df.noise == 0) & np.isclose(df.value, value)]
+    assert len(d), (model, quantity, param, value)
+    return float(d.q.mean())
+
+
+def _agrees(text: str, x: float) -> bool:
+    """``text`` (as printed: 2 significant digits, or 3 as in 0.0257) is ``x`` rounded."""
+    digits = len(re.sub(r"e.*|[^0-9]", "", text).lstrip("0"))
+    return f"{x:.{max(digits, 1)}g}" == f"{float(text):.{max(digits, 1)}g}"
+
+
+def test_zoom_table_agrees_with_the_sweeps():
+    """The zoom-blur table's first and last columns quote the shipped sweeps."""
+    text = DOC.read_text()
+    sec = text[text.index("| | `paper` setup, as shipped |"):]
+    rows = {r.split("|")[1].strip(): [c.strip() for c in r.split("|")[2:-1]]
+            for r in sec.splitlines()[2:7]}
+    paper, grid = read_sweep_csv(RESULTS / SWEEPS["paper_setup"]), \
+        read_sweep_csv(RESULTS / SWEEPS["paper"])
+    bcc = rows["BCC's U_Z error at a2 = 0"]
+    assert _agrees(bcc[0], _q(paper, "bcc", "Uz", "a2", 0.0))
+    assert _agrees(bcc[2], _q(grid, "bcc", "Uz", "a2", 0.0))
+    hf_full = rows["HF's / full's U_Z error at a2 = 0"]
+    for col, df in ((0, paper), (2, grid)):
+        hf, full = (v.strip() for v in hf_full[col].split("/"))
+        assert _agrees(hf, _q(df, "hf", "Uz", "a2", 0.0))
+        assert _agrees(full, _q(df, "full", "Uz", "a2", 0.0))
+    a1 = rows["full's Q_rel(a1) at a1 = 0.1"]
+    assert _agrees(a1[0], _q(paper, "full", "a1", "a1", 0.1))
+    assert _agrees(a1[2], _q(grid, "full", "a1", "a1", 0.1))

@@ -250,6 +250,7 @@ def cmd_figures(a) -> int:
 
 
 def cmd_claims(a) -> int:
+    from gridflow.errors import UsageError
     from gridflow.io import atomic_write, check_output
 
     from .claims import check_claims, paper_terms, paper_terms_markdown, write_claims
@@ -259,7 +260,7 @@ def cmd_claims(a) -> int:
 
     if a.write_csv:
         if len(a.csv) > 1:
-            raise ValueError("--write-csv takes the verdicts of one sweep; got "
+            raise UsageError("--write-csv takes the verdicts of one sweep; got "
                              f"{len(a.csv)} sweep CSVs (use --write-terms to compare them)")
         check_output(a.write_csv, suffixes=".csv", inputs=a.csv, what="--write-csv")
     if a.write_terms:
@@ -272,7 +273,7 @@ def cmd_claims(a) -> int:
         table = check_claims(df)
         label = setup_label(df).removesuffix(" setup")
         if label in tables:
-            raise ValueError(f"{path}: a second sweep of the {label} setup; --write-terms "
+            raise UsageError(f"{path}: a second sweep of the {label} setup; --write-terms "
                              "compares one sweep per setup")
         tables[label] = table
         print(f"{path} ({label} setup):")
@@ -285,7 +286,7 @@ def cmd_claims(a) -> int:
     if a.write_terms or (a.write_doc and len(a.csv) > 1):
         terms = paper_terms(tables)
         if terms.empty:
-            raise ValueError("--write-terms: none of the sweeps tests the paper's "
+            raise UsageError("--write-terms: none of the sweeps tests the paper's "
                              "observations (a growth sweep has no paper terms)")
         if a.write_terms:
             with atomic_write(a.write_terms, "w") as fh:

@@ -122,3 +122,15 @@ def test_zoom_table_agrees_with_the_sweeps():
     a1 = rows["full's Q_rel(a1) at a1 = 0.1"]
     assert _agrees(a1[0], _q(paper, "full", "a1", "a1", 0.1))
     assert _agrees(a1[2], _q(grid, "full", "a1", "a1", 0.1))
+
+
+def test_claims_cli_refuses_ambiguous_outputs(tmp_path, capsys):
+    from gridflow.bench.cli import main
+
+    two = [str(RESULTS / SWEEPS["paper"]), str(RESULTS / SWEEPS["paper_setup"])]
+    assert main(["claims", *two, "--write-csv", str(tmp_path / "v.csv")]) == 2
+    assert "--write-csv takes the verdicts of one sweep" in capsys.readouterr().err
+    assert main(["claims", str(RESULTS / SWEEPS["growth"]), "--write-terms",
+                 str(tmp_path / "t.csv")]) == 2
+    assert "no paper terms" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())

@@ -311,16 +311,18 @@ def cmd_cube(a) -> int:
     check_output(a.cache, suffixes=None, what="--cache")
     if a.write_doc:
         check_output(a.write_doc, suffixes=".md", what="--write-doc")
-    scene = CubeScene(width=a.size, height=a.size, grid=(a.grid, a.grid), frames=a.frames)
+    scene = CubeScene(width=a.size, height=a.size, grid=(a.grid, a.grid), frames=a.frames,
+                      spotlight=not a.no_spotlight, texture_scale=a.texture_scale)
     r = run_cube_experiment(scene, a.cache, csv=a.csv, fig_dir=a.fig_dir, doc=a.write_doc,
-                            sigma=a.sigma, window=a.window, progress=not a.no_progress)
+                            sigma=a.sigma, window=a.window, progress=not a.no_progress,
+                            temporal_radius=a.temporal_radius)
     print(f"scene {r.folder}: rendered {r.rendered} images in {r.render_seconds} s "
           f"(this run: {r.seconds_render:.1f} s)")
     print(f"estimated bcc, hf, full (sigma {a.sigma:g}, {a.window} taps) in "
           f"{r.seconds_estimate:.1f} s")
     print(r.table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     for c in r.checks:
-        print(f"observation 11, {c['face']} face: {c['check']}: "
+        print(f"observation {c['observation']}, {c['face']} face: {c['check']}: "
               f"{'holds' if c['holds'] else 'does not hold'}")
     for p in r.written:
         print(f"wrote {p}")
@@ -491,6 +493,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="window sigma, px (default 8: the 55-px left face of a 256-px image "
                         "needs a smaller window than the sinusoid's 16)")
     p.add_argument("--window", type=int, default=33, help="window taps (default 33)")
+    p.add_argument("--temporal-radius", type=_positive_int, default=None, metavar="R",
+                   help="Omega over frames -R..R (default: the estimator's, 2 for 9 frames)")
+    p.add_argument("--texture-scale", type=float, default=4.0, metavar="MM",
+                   help="the noise texture's feature size, mm (default 4: ~6 px)")
+    p.add_argument("--no-spotlight", action="store_true",
+                   help="ambient and a fixed light only (isolates the spotlight's effect)")
     p.add_argument("--csv", default="results/cube.csv", help="per-face error table")
     p.add_argument("--fig-dir", default="results/figures", help="where fig1.{png,pdf} go")
     p.add_argument("--write-doc", help="markdown file whose cube section to rewrite")

@@ -24,11 +24,21 @@ from gridflow.scenes import FACE_NAMES, CubeScene, face_interior, spot_angle
 from .metrics import q_abs, q_rel
 
 __all__ = ["run_cube_experiment", "CubeReport", "run_cube", "cube_table", "fig1",
-           "observation11", "regions", "cube_markdown"]
+           "observation11", "observation12", "regions", "cube_markdown", "angular_errors"]
 
 COLUMNS = ["face", "region", "model", "n_pixels", "n_valid", "q_rel_Uz", "q_abs_Ux", "q_abs_Uy",
            "q_rel_Z", "q_abs_Zx", "q_abs_Zy", "median_model_error", "median_rel_Uz",
-           "median_abs_Zx"]
+           "median_abs_Zx", "median_angle_deg", "p90_angle_deg", "median_shown_deg",
+           "shown_right"]
+
+# The paper's Fig. 1 (f)-(h) draws U_X and U_Y scaled by 135 against U_Z "to visualize
+# estimation errors", and says the richest model's vectors "point in the correct
+# direction almost everywhere".  As numbers: a vector drawn that way points the right
+# way when it is nearer the true direction than any of the eight compass directions next
+# to it (within 22.5 degrees); "almost everywhere" is at least 90 % of a face's interior.
+SCALE = 135.0
+RIGHT_DEG = 22.5
+ALMOST = 0.9
 
 
 def run_cube(data, **settings):
@@ -40,7 +50,21 @@ def run_cube(data, **settings):
                            principal_point=data.principal_point, **settings)
 
 
-REGIONS = ("interior", "edge", "spot_border", "away")
+REGIONS = ("interior", "edge", "ridge", "silhouette", "spot_border", "away")
+
+
+def angular_errors(maps, truth, scale: float = 1.0) -> np.ndarray:
+    """Angle (degrees) between the estimated and the true motion vector, shape (H, W).
+
+    ``scale`` multiplies the lateral components (U_X, U_Y) of both before the angle is
+    taken: 1 gives the 3-D angular error; :data:`SCALE` the error as Fig. 1 draws it.
+    NaN where either vector is not finite or zero.
+    """
+    u = np.stack([scale * maps["Ux"], scale * maps["Uy"], maps["Uz"]], axis=-1)
+    t = np.stack([scale * truth["Ux"], scale * truth["Uy"], truth["Uz"]], axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos = (u * t).sum(-1) / (np.linalg.norm(u, axis=-1) * np.linalg.norm(t, axis=-1))
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
 def regions(data, margin: float) -> dict[str, np.ndarray]:
@@ -48,13 +72,21 @@ def regions(data, margin: float) -> dict[str, np.ndarray]:
 
     ``interior``: the faces' pixels at least ``margin`` from another face or the
     background (the whole window lies on one face); ``edge``: cube pixels closer than that
-    to an edge of the cube; ``spot_border``: interior pixels in the spotlight's border at
+    to an edge of the cube, split into ``silhouette`` (within ``margin`` of the
+    background) and ``ridge`` (the rest: near the edge between the faces); ``spot_border``: interior pixels in the spotlight's border at
     the reference frame (between its full-strength radius and its falloff, where the
     illumination varies across the surface); ``away``: the rest of the interior.
     """
+    from scipy.ndimage import distance_transform_edt
+
     face = data.truth["face"].astype(int)
     inner = face_interior(face, margin)
-    out = {"interior": inner, "edge": (face > 0) & ~inner}
+    edge = (face > 0) & ~inner
+    # the silhouette: edge pixels whose window reaches the background (the cube against
+    # black); the ridge: the rest of the edge, whose window reaches only the other face
+    near_background = distance_transform_edt(face > 0) < margin
+    out = {"interior": inner, "edge": edge, "ridge": edge & ~near_background,
+           "silhouette": edge & near_background}
     src = (data.meta.get("source") or {}).get("scene")
     if src is not None:
         scene = CubeScene(**{k: tuple(v) if isinstance(v, list) else v
@@ -74,6 +106,8 @@ def cube_table(data, results, margin: float | None = None) -> pd.DataFrame:
     if margin is None:
         margin = next(iter(results.values())).settings["window"] // 2
     masks = regions(data, margin)
+    angles = {m: (angular_errors(e.maps, data.truth), angular_errors(e.maps, data.truth, SCALE))
+              for m, e in results.items()}
     rows = []
     for (fid, fname), region in ((f, r) for f in FACE_NAMES.items() for r in REGIONS
                                  if r in masks):
@@ -100,23 +134,72 @@ def cube_table(data, results, margin: float | None = None) -> pd.DataFrame:
                 if ok.any() else float("nan"),
                 "median_abs_Zx": float(np.median(np.abs(m["Zx"][ok] - t["Zx"][ok])))
                 if ok.any() else float("nan"),
+                **_angle_stats(*angles[model], mask),
             })
     return pd.DataFrame(rows, columns=COLUMNS)
 
 
+def _angle_stats(angle, shown, mask) -> dict:
+    """Angular-error columns over ``mask``: an invalid estimate counts as pointing
+    wrongly (it draws no arrow)."""
+    a, s = angle[mask], shown[mask]
+    if not a.size:
+        return {"median_angle_deg": np.nan, "p90_angle_deg": np.nan,
+                "median_shown_deg": np.nan, "shown_right": np.nan}
+    a = np.where(np.isfinite(a), a, 180.0)
+    s = np.where(np.isfinite(s), s, 180.0)
+    return {"median_angle_deg": float(np.median(a)),
+            "p90_angle_deg": float(np.percentile(a, 90)),
+            "median_shown_deg": float(np.median(s)),
+            "shown_right": float(np.mean(s < RIGHT_DEG))}
+
+
 def cube_markdown(table: pd.DataFrame, checks: list[dict], source: str) -> str:
-    """The cube's per-face, per-region table and observation 11's checks, as markdown."""
-    cols = ["face", "region", "model", "n_pixels", "q_rel_Uz", "q_abs_Ux", "q_abs_Uy",
-            "q_abs_Zx", "median_model_error", "median_rel_Uz"]
-    lines = [f"Made by `gridflow cube` from {source} (`results/cube.csv`).", "",
-             "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for r in table[cols].itertuples(index=False):
-        lines.append("| " + " | ".join(f"{v:.3g}" if isinstance(v, float) else str(v)
-                                        for v in r) + " |")
-    lines += ["", "| face | observation 11: check | verdict |", "|---|---|---|"]
-    lines += [f"| {c['face']} | {c['check']} | **{'holds' if c['holds'] else 'does not hold'}** |"
-              for c in checks]
+    """The cube's per-face, per-region tables (errors; motion directions) and the checks of
+    observations 11 and 12, as markdown."""
+    def rows(cols):
+        out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+        for r in table[cols].itertuples(index=False):
+            out.append("| " + " | ".join(f"{v:.3g}" if isinstance(v, float) else str(v)
+                                         for v in r) + " |")
+        return out
+
+    lines = [f"Made by `gridflow cube` from {source} (`results/cube.csv`).", ""]
+    lines += rows(["face", "region", "model", "n_pixels", "q_rel_Uz", "q_abs_Ux", "q_abs_Uy",
+                   "q_abs_Zx", "median_model_error", "median_rel_Uz"])
+    lines += ["", f"Motion directions: the 3-D angular error of (U_X, U_Y, U_Z) (median, 90th "
+              f"percentile), the error as Fig. 1 draws it (U_X, U_Y x{SCALE:g}; median) and "
+              f"the fraction drawn within {RIGHT_DEG:g} degrees of the truth (an invalid "
+              "estimate counts as wrong).", ""]
+    lines += rows(["face", "region", "model", "n_valid", "median_angle_deg", "p90_angle_deg",
+                   "median_shown_deg", "shown_right"])
+    lines += ["", "| face | observation | check | verdict |", "|---|---|---|---|"]
+    lines += [f"| {c['face']} | {c.get('observation', '11')} | {c['check']} | "
+              f"**{'holds' if c['holds'] else 'does not hold'}** |" for c in checks]
     return "\n".join(lines)
+
+
+def observation12(table: pd.DataFrame) -> list[dict]:
+    """Observation 12 per face (Sec. 4.2: "even with this large accentuation of errors
+    motion vectors estimated with the richest model point in the correct direction almost
+    everywhere.  The other models yield much less accurate vector fields"): over the
+    face interior, at least :data:`ALMOST` of the full model's vectors drawn as Fig. 1
+    draws them (lateral components x :data:`SCALE`) lie within :data:`RIGHT_DEG` of the
+    truth; HF's and BCC's median 3-D angular errors are at least twice the full model's
+    ("much less accurate")."""
+    out = []
+    for face, d in table.groupby("face", sort=False):
+        v = d[d.region == "interior"].set_index("model")
+        checks = {
+            f"full drawn within {RIGHT_DEG:g} deg on {ALMOST:.0%} of the interior":
+                bool(v.shown_right["full"] >= ALMOST),
+            "HF, BCC median angular error at least twice full's": bool(
+                min(v.median_angle_deg["hf"], v.median_angle_deg["bcc"])
+                >= 2 * v.median_angle_deg["full"]),
+        }
+        out += [{"face": face, "observation": "12", "check": k, "holds": ok}
+                for k, ok in checks.items()]
+    return out
 
 
 def observation11(table: pd.DataFrame) -> list[dict]:
@@ -146,21 +229,24 @@ def observation11(table: pd.DataFrame) -> list[dict]:
                 me["edge"]["full"] >= 2 * me["away"]["full"]
                 and me["spot_border"]["full"] < 2 * me["away"]["full"])
         for name, ok in checks.items():
-            out.append({"face": face, "check": name, "holds": ok})
+            out.append({"face": face, "observation": "11", "check": name, "holds": ok})
     return out
 
 
 def fig1(data, results, step: int = 12, scale: float = 135.0, margin: float | None = None):
     """The paper's Fig. 1, readable without the text, as a 3 x 4 grid of panels.
 
-    Top: first and last central images, the regions the paper speaks of (cube edge,
-    spotlight border, the rest), and the ratio of HF's to the full model's model error.
-    Middle: the model error of BCC, HF and full, each on its own log colour range (their
-    levels differ by orders of magnitude; the ratio panel compares HF and full directly).
-    Bottom: the estimated motion of each model as the 3-D vector (scale U_X, scale U_Y,
-    U_Z) in a cabinet projection (U_Z along the diagonal), over the true vector (0, 0,
-    U_Z < 0) drawn in orange at the same points: any lateral error bends the blue arrow
-    away from the orange one.
+    Top: first and last central images, the regions the paper speaks of (the cube's
+    silhouette and the ridge between its faces, the spotlight's border, the rest), and
+    the ratio of HF's to the full model's model error.  Middle: the model error of BCC,
+    HF and full on one shared log colour range.  Bottom: the estimated motion of each
+    model as the 3-D vector (scale U_X, scale U_Y, U_Z) in a cabinet projection with U_Z
+    along the diagonal at full length (so a lateral error is drawn exactly ``scale``
+    times longer than it is, relative to U_Z), over the true vector (0, 0, U_Z < 0) in
+    orange; an estimate is drawn green where its angle to the truth, as drawn in 3-D, is
+    within :data:`RIGHT_DEG` (the measure of observation 12 and of ``cube.csv``'s
+    ``shown_right``), red elsewhere, and the title gives that fraction over the face
+    interiors.
     """
     import matplotlib
 
@@ -188,16 +274,18 @@ def fig1(data, results, step: int = 12, scale: float = 135.0, margin: float | No
             a.set_title(title)
         # the regions of the text
         reg = np.full(ref.shape, np.nan)
-        reg[masks["edge"]] = 0
+        reg[masks["silhouette"]] = 0
+        reg[masks["ridge"]] = 1
         if "spot_border" in masks:
-            reg[masks["away"]] = 1
-            reg[masks["spot_border"]] = 2
+            reg[masks["away"]] = 2
+            reg[masks["spot_border"]] = 3
         a = ax[0, 2]
         a.imshow(faint, cmap="gray", vmin=0, vmax=1)
-        cmap = ListedColormap(["#d62728", "#7f7f7f", "#1f77b4"])
-        a.imshow(np.ma.masked_invalid(reg), cmap=cmap, vmin=-0.5, vmax=2.5, alpha=0.55,
+        cmap = ListedColormap(["#d62728", "#ff9f1c", "#7f7f7f", "#1f77b4"])
+        a.imshow(np.ma.masked_invalid(reg), cmap=cmap, vmin=-0.5, vmax=3.5, alpha=0.55,
                  interpolation="nearest")
-        for colour, label in zip(cmap.colors, ("cube edge", "elsewhere", "spotlight border")):
+        for colour, label in zip(cmap.colors, ("silhouette", "ridge", "elsewhere",
+                                               "spotlight border")):
             a.plot([], [], "s", color=colour, label=label)
         a.legend(loc="lower left", fontsize="x-small", framealpha=0.8)
         a.set_title("regions (reference frame)")
@@ -207,34 +295,44 @@ def fig1(data, results, step: int = 12, scale: float = 135.0, margin: float | No
         ok = np.isfinite(ratio) & (ratio > 0)
         a.imshow(faint, cmap="gray", vmin=0, vmax=1)
         if ok.any():
-            rn = LogNorm(*np.percentile(ratio[ok], [2, 98]))
+            lo_r, hi_r = np.percentile(ratio[ok], [2, 98])
+            rn = LogNorm(lo_r, hi_r)
             im = a.imshow(np.ma.masked_where(~ok, ratio), cmap="viridis", norm=rn, alpha=0.85)
             cb = fig.colorbar(im, ax=a, shrink=0.8, location="bottom", pad=0.02,
                               label="HF / full model error")
-            from matplotlib.ticker import NullFormatter
-
-            cb.ax.xaxis.set_minor_formatter(NullFormatter())
+            # the range may lie within one decade, where a log axis has no major tick:
+            # five labelled ticks spread over it
+            ticks = np.geomspace(lo_r, hi_r, 5)
+            cb.set_ticks(ticks, labels=[f"{t:.2g}" for t in ticks])
+            cb.ax.minorticks_off()
         a.set_title("HF vs full")
-        for col, (model, e) in enumerate(results.items()):
+        # one log range for the three models: from the 2nd percentile of the lowest to
+        # the 98th of the highest, so their levels compare at a glance
+        errs = {m: e["model_error"] for m, e in results.items()}
+        pos = [v[np.isfinite(v) & (v > 0)] for v in errs.values()]
+        pos = [v for v in pos if v.size]
+        norm = LogNorm(min(np.percentile(v, 2) for v in pos),
+                       max(np.percentile(v, 98) for v in pos)) if pos else None
+        for col, (model, err) in enumerate(errs.items()):
             a = ax[1, col]
             a.imshow(faint, cmap="gray", vmin=0, vmax=1)
-            err = e["model_error"]
             good = np.isfinite(err) & (err > 0)
             if good.any():
-                norm = LogNorm(*np.percentile(err[good], [2, 98]))
                 im = a.imshow(np.ma.masked_where(~good, err), cmap="inferno", norm=norm,
                               alpha=0.8)
                 fig.colorbar(im, ax=a, shrink=0.8, location="bottom", pad=0.02,
-                             label="model error")
+                             label="model error (one range for b-d)")
             a.set_title(f"({'bcd'[col]}) model error, {names[model]}")
         ax[1, 3].axis("off")
         ax[1, 3].text(0, 0.5, "Model error: the largest of the\nthree smallest eigenvalues of J,"
-                      "\neach panel on its own log range.\n\nMotion (bottom): blue the estimate,"
-                      f"\norange the truth; U_X, U_Y scaled\nx{scale:g} against U_Z, arrows longer"
-                      "\nthan two grid steps clipped.", va="center", fontsize="small")
+                      "\nb-d on one log range.\n\nMotion (bottom): U_Z along the\ndiagonal "
+                      f"at full length, U_X, U_Y\nscaled x{scale:g} against it; orange the\n"
+                      f"truth, the estimate green where\nits drawn direction is within "
+                      f"{RIGHT_DEG:g} deg\nof the truth, red elsewhere; arrows\nlonger "
+                      "than two grid steps clipped.", va="center", fontsize="small")
         H, W = ref.shape
         yy, xx = np.mgrid[step // 2:H:step, step // 2:W:step]
-        c45 = 0.5 * np.sqrt(0.5)
+        c45 = np.sqrt(0.5)          # U_Z drawn along the diagonal at its full length
         on_cube = data.truth["face"][yy, xx] > 0
         tz = data.truth["Uz"][yy, xx]
         unit = abs(c45 * np.nanmedian(data.truth["Uz"])) * np.sqrt(2) / step
@@ -252,10 +350,21 @@ def fig1(data, results, step: int = 12, scale: float = 135.0, margin: float | No
             b.quiver(xx[t_ok], yy[t_ok], (c45 * tz)[t_ok], (c45 * tz)[t_ok], angles="xy",
                      scale_units="xy", scale=unit, width=0.006, color="#ff9f1c",
                      label="truth")
-            b.quiver(xx[ok], yy[ok], (dx * clip)[ok], (dy * clip)[ok], angles="xy",
-                     scale_units="xy", scale=unit, width=0.004, color="#00a0ff",
-                     label="estimate")
-            b.set_title(f"({'fgh'[col]}) motion, {names[model].split(' ')[0]}")
+            shown = angular_errors(e.maps, data.truth, scale)
+            right = shown[yy, xx] < RIGHT_DEG
+            for sel, colour, label in ((ok & right, "#2ca02c", "estimate, right way"),
+                                       (ok & ~right, "#d62728", "estimate, wrong way")):
+                b.quiver(xx[sel], yy[sel], (dx * clip)[sel], (dy * clip)[sel], angles="xy",
+                         scale_units="xy", scale=unit, width=0.004, color=colour,
+                         label=label)
+            fracs = []
+            for fid, fname in FACE_NAMES.items():
+                inner = masks["interior"] & e.interior & (data.truth["face"] == fid)
+                s_in = np.where(np.isfinite(shown[inner]), shown[inner], 180.0)
+                if s_in.size:
+                    fracs.append(f"{fname} {np.mean(s_in < RIGHT_DEG):.0%}")
+            b.set_title(f"({'fgh'[col]}) motion, {names[model].split(' ')[0]}; right way: "
+                        + ", ".join(fracs), fontsize="small")
             if col == 0:
                 b.legend(loc="lower left", fontsize="x-small", framealpha=0.8)
         ax[2, 3].axis("off")
@@ -299,6 +408,7 @@ class CubeReport:
 
 def run_cube_experiment(scene: CubeScene, cache, *, csv, fig_dir, doc=None,
                         sigma: float = 8.0, window: int = 33,
+                        temporal_radius: int | None = None,
                         progress: bool = True) -> CubeReport:
     """Render ``scene`` into ``cache`` (or find it there), estimate, score, draw, write.
 
@@ -316,6 +426,8 @@ def run_cube_experiment(scene: CubeScene, cache, *, csv, fig_dir, doc=None,
     sigma, window
         The estimator's window (the 55-px left face of a 256-px image needs a smaller one
         than the sinusoid's 16).
+    temporal_radius : int, optional
+        Omega over frames -R..R (default: the estimator's).
     progress : bool
         The render's progress bar.
     """
@@ -331,16 +443,17 @@ def run_cube_experiment(scene: CubeScene, cache, *, csv, fig_dir, doc=None,
     data = load_folder(folder)
     src = data.meta.get("source") or {}
     t1 = time.perf_counter()
-    results = run_cube(data, sigma=sigma, window=window)
+    results = run_cube(data, sigma=sigma, window=window, temporal_radius=temporal_radius)
     t2 = time.perf_counter()
     table = cube_table(data, results)
-    checks = observation11(table)
+    checks = observation11(table) + observation12(table)
     with atomic_write(csv, "w") as fh:
         table.to_csv(fh, index=False, float_format="%.6g")
     written = [Path(csv)]
     if doc:
         written.append(rewrite_block(doc, "cube", cube_markdown(
-            table, checks, f"the scene `{folder.name}`, sigma {sigma:g}, {window} taps")))
+            table, checks, f"the scene `{folder.name}`, sigma {sigma:g}, {window} taps"
+            + (f", temporal radius {temporal_radius}" if temporal_radius else ""))))
     written += F.save(fig1(data, results), fig_dir, "fig1")
     return CubeReport(folder, src.get("rendered"), src.get("render_seconds"), t1 - t0,
                       t2 - t1, table, checks, written)

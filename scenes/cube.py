@@ -74,6 +74,9 @@ class CubeScene:
             raise ParameterError(f"grid {self.grid} must be odd positive sizes")
         if self.frames < 1:
             raise ParameterError("frames must be >= 1")
+        if not (np.isfinite(self.texture_scale) and self.texture_scale > 0):
+            raise ParameterError(f"texture_scale must be a positive length in mm, got "
+                                 f"{self.texture_scale}")
 
     @property
     def f(self) -> float:

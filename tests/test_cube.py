@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from gridflow.bench.cli import main
-from gridflow.bench.cube_experiment import cube_table, observation11, run_cube
+from gridflow.bench.cube_experiment import (RIGHT_DEG, SCALE, angular_errors, cube_table,
+                                            observation11, observation12, run_cube)
 from gridflow.scenes import face_interior
 from gridflow.io import load_estimate
 from gridflow.loader import load_folder
@@ -54,14 +55,21 @@ def test_cube_table_and_observation(small):
     res = run_cube(d, sigma=4.0, window=17)
     t = cube_table(d, res)
     assert list(t.face.unique()) == ["left", "right"]
-    assert list(t.region.unique()) == ["interior", "edge", "spot_border", "away"]
-    assert len(t) == 2 * 4 * 3
-    # the spotlight's border and the rest partition the interior
+    assert list(t.region.unique()) == ["interior", "edge", "ridge", "silhouette",
+                                       "spot_border", "away"]
+    assert len(t) == 2 * 6 * 3
+    # the spotlight's border and the rest partition the interior, ridge and silhouette
+    # the edge
     n = t.set_index(["face", "region", "model"]).n_pixels
     for face in ("left", "right"):
         for m in ("bcc", "hf", "full"):
             assert n[face, "interior", m] == n[face, "spot_border", m] + n[face, "away", m]
-    checks = observation11(t)
+            assert n[face, "edge", m] == n[face, "ridge", m] + n[face, "silhouette", m]
+            assert n[face, "ridge", m] > 0 and n[face, "silhouette", m] > 0
+    assert ((t.shown_right >= 0) & (t.shown_right <= 1)).all()
+    assert (t.median_angle_deg <= t.p90_angle_deg).all()
+    checks = observation11(t) + observation12(t)
+    assert {c["observation"] for c in checks} == {"11", "12"}
     assert all(isinstance(r["holds"], bool) for r in checks)
     assert {r["check"] for r in checks} >= {"HF high at the edge and the spot's border",
                                             "full high only at the edge"}
@@ -120,3 +128,42 @@ def test_missing_povray_is_a_clear_error(monkeypatch, tmp_path):
     with pytest.raises(PovrayMissing):
         render_cube(CubeScene(width=16, height=16, grid=(3, 3), frames=3), tmp_path,
                     progress=False)
+
+
+def test_angular_errors():
+    """The 3-D angle and the angle as Fig. 1 draws it (lateral x SCALE), on vectors whose
+    angles are known: a lateral error of tan(a) |U_Z| is a degrees in 3-D and
+    atan(SCALE tan a) as drawn; an invalid estimate is NaN."""
+    truth = {"Ux": np.zeros((1, 3)), "Uy": np.zeros((1, 3)), "Uz": np.full((1, 3), -2.0)}
+    a = np.radians([0.1, 1.0, 10.0])
+    est = {"Ux": 2 * np.tan(a)[None] * np.array([[1, 0, np.sqrt(0.5)]]),
+           "Uy": 2 * np.tan(a)[None] * np.array([[0, 1, np.sqrt(0.5)]]),
+           "Uz": np.full((1, 3), -2.0)}
+    np.testing.assert_allclose(angular_errors(est, truth)[0], np.degrees(a), rtol=1e-9)
+    np.testing.assert_allclose(angular_errors(est, truth, SCALE)[0],
+                               np.degrees(np.arctan(SCALE * np.tan(a))), rtol=1e-9)
+    est["Uz"] = np.array([[np.nan, 2.0, -2.0]])
+    got = angular_errors(est, truth)[0]
+    assert np.isnan(got[0]) and got[1] > 90
+
+
+def test_observation12_reads_the_fraction_and_the_medians():
+    """Observation 12 holds for a face exactly when the full model's drawn directions are
+    right on at least 90 % of the interior and the other models' median angles are at
+    least twice its own; each condition failing alone fails its check."""
+    import pandas as pd
+
+    def table(full_right, hf_angle):
+        rows = [{"face": "left", "region": "interior", "model": m, "shown_right": r,
+                 "median_angle_deg": ang}
+                for m, r, ang in (("bcc", 0.0, 90.0), ("hf", 0.5, hf_angle),
+                                  ("full", full_right, 1.0))]
+        return pd.DataFrame(rows)
+
+    def verdicts(t):
+        return [c["holds"] for c in observation12(t)]
+
+    assert verdicts(table(0.95, 3.0)) == [True, True]
+    assert verdicts(table(0.85, 3.0)) == [False, True]
+    assert verdicts(table(0.95, 1.5)) == [True, False]
+    assert RIGHT_DEG == 22.5

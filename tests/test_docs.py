@@ -20,7 +20,7 @@ import pytest
 
 from gridflow.bench.claims import (check_claims, claims_markdown, paper_terms,
                                    paper_terms_markdown, render_checks, GROWTH_CLAIMS)
-from gridflow.bench.cube_experiment import cube_markdown, observation11
+from gridflow.bench.cube_experiment import cube_markdown, observation11, observation12
 from gridflow.bench.markdown import replace_block
 from gridflow.bench.sweep import read_sweep_csv
 
@@ -77,7 +77,8 @@ def test_cube_block_agrees_with_cube_csv():
     text = block("cube")
     source = re.match(r"Made by `gridflow cube` from (.*) \(`results/cube\.csv`\)\.", text)
     assert source, "the cube block does not name its source"
-    assert text == cube_markdown(table, observation11(table), source.group(1))
+    checks = observation11(table) + observation12(table)
+    assert text == cube_markdown(table, checks, source.group(1))
 
 
 def test_a_stale_block_is_caught(claims):

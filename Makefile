@@ -61,7 +61,8 @@ SWEEP_CSV := results/sweep_paper.csv
 SETUP_CSV := results/sweep_paper_setup.csv
 GROWTH_CSV := results/sweep_growth.csv
 FIGDIR    := results/figures
-FIGS      := $(FIGDIR)/fig1.png $(FIGDIR)/fig2.png $(FIGDIR)/fig3.png $(FIGDIR)/fig4.png \
+FIGS      := $(FIGDIR)/fig1.png $(FIGDIR)/fig2.png \
+             $(FIGDIR)/fig3_gridflow_setup.png $(FIGDIR)/fig4_gridflow_setup.png \
              $(FIGDIR)/fig3_paper_setup.png $(FIGDIR)/fig4_paper_setup.png \
              $(FIGDIR)/fig_growth.png
 OUTPUTS   := $(FIGS) results/claims.csv results/claims_paper_setup.csv results/cube.csv \
@@ -94,11 +95,11 @@ $(FIGDIR)/fig_growth.png: $(GROWTH_CSV) bench/figures.py | $(STAMP)
 results/claims_growth.csv: $(GROWTH_CSV) bench/claims.py bench/markdown.py | $(STAMP)
 	$(BIN)/gridflow claims $< --write-csv $@ --write-doc docs/reproduction.md
 
-$(FIGDIR)/fig3.png $(FIGDIR)/fig4.png &: $(SWEEP_CSV) bench/figures.py | $(STAMP)
+$(FIGDIR)/fig3_gridflow_setup.png $(FIGDIR)/fig4_gridflow_setup.png &: $(SWEEP_CSV) bench/figures.py | $(STAMP)
 	$(BIN)/gridflow figures --sweep $< --out $(FIGDIR)
 
 $(FIGDIR)/fig3_paper_setup.png $(FIGDIR)/fig4_paper_setup.png &: $(SETUP_CSV) bench/figures.py | $(STAMP)
-	$(BIN)/gridflow figures --sweep $< --out $(FIGDIR) --suffix _paper_setup
+	$(BIN)/gridflow figures --sweep $< --out $(FIGDIR)
 
 $(FIGDIR)/fig2.png: bench/figures.py generators/sinusoid.py | $(STAMP)
 	$(BIN)/gridflow figures --fig2 --out $(FIGDIR)

@@ -335,7 +335,11 @@ def sinusoid_fig2():
 def draw_figures(out_dir, *, sweep: pd.DataFrame | None = None, fig2_too: bool = False,
                  suffix: str = "") -> list[Path]:
     """Figs. 3 and 4 from a sweep table (:func:`gridflow.bench.sweep.read_sweep_csv`)
-    and/or Fig. 2, as ``fig3SUFFIX.png`` etc. in ``out_dir``; returns the paths written."""
+    and/or Fig. 2, in ``out_dir``; returns the paths written.
+
+    Figs. 3 and 4 are named after the setup the sweep ran under (``fig3_gridflow_setup.png``,
+    ``fig3_paper_setup.png``), then ``suffix``; a growth sweep's figure is
+    ``fig_growthSUFFIX.png``."""
     written = []
     if sweep is not None:
         names = [f"sweep {n}" for n in sweep["sweep"].unique()] if "sweep" in sweep else []
@@ -344,8 +348,9 @@ def draw_figures(out_dir, *, sweep: pd.DataFrame | None = None, fig2_too: bool =
             # a growth sweep: its own figure
             written += save(fig_growth(sweep, label=label), out_dir, "fig_growth" + suffix)
         else:
-            written += save(fig3(sweep, label), out_dir, "fig3" + suffix)
-            written += save(fig4(sweep, label=label), out_dir, "fig4" + suffix)
+            setup = "_" + setup_label(sweep).replace(" ", "_")
+            written += save(fig3(sweep, label), out_dir, "fig3" + setup + suffix)
+            written += save(fig4(sweep, label=label), out_dir, "fig4" + setup + suffix)
     if fig2_too:
         written += save(sinusoid_fig2(), out_dir, "fig2")
     return written

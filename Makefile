@@ -60,6 +60,7 @@ NUMERICS  := $(wildcard estimator/*.py generators/*.py) base/volume.py base/io.p
 SWEEP_CSV := results/sweep_paper.csv
 SETUP_CSV := results/sweep_paper_setup.csv
 GROWTH_CSV := results/sweep_growth.csv
+ZOOM_CSV  := results/sweep_paper_setup_zoom.csv
 FIGDIR    := results/figures
 FIGS      := $(FIGDIR)/fig1.png $(FIGDIR)/fig2.png \
              $(FIGDIR)/fig3_gridflow_setup.png $(FIGDIR)/fig4_gridflow_setup.png \
@@ -67,7 +68,7 @@ FIGS      := $(FIGDIR)/fig1.png $(FIGDIR)/fig2.png \
              $(FIGDIR)/fig_growth.png
 OUTPUTS   := $(FIGS) results/claims.csv results/claims_paper_setup.csv results/cube.csv \
              results/peers_depth.csv results/claims_growth.csv results/leaf.csv \
-             results/paper_terms.csv
+             results/paper_terms.csv results/claims_paper_setup_zoom.csv
 CUBE_SRC  := $(wildcard estimator/*.py scenes/*.py) base/loader.py base/errors.py \
              bench/cube_experiment.py bench/figures.py bench/metrics.py bench/markdown.py
 
@@ -77,7 +78,7 @@ figures: $(STAMP) $(KERNELS)
 
 # Everything from scratch: delete the generated results, then rebuild them.
 reproduce: $(STAMP)
-	rm -rf $(OUTPUTS) $(SWEEP_CSV) $(SETUP_CSV) $(GROWTH_CSV) work/cube
+	rm -rf $(OUTPUTS) $(SWEEP_CSV) $(SETUP_CSV) $(GROWTH_CSV) $(ZOOM_CSV) work/cube
 	@$(MAKE) --no-print-directory figures
 
 $(SWEEP_CSV): bench/sweeps/paper.toml $(NUMERICS) | $(STAMP)
@@ -88,6 +89,12 @@ $(SETUP_CSV): bench/sweeps/paper_setup.toml $(NUMERICS) | $(STAMP)
 
 $(GROWTH_CSV): bench/sweeps/growth.toml $(NUMERICS) | $(STAMP)
 	$(BIN)/gridflow sweep $< -o $@
+
+$(ZOOM_CSV): bench/sweeps/paper_setup_zoom.toml $(NUMERICS) | $(STAMP)
+	$(BIN)/gridflow sweep $< -o $@
+
+results/claims_paper_setup_zoom.csv: $(ZOOM_CSV) bench/claims.py bench/markdown.py | $(STAMP)
+	$(BIN)/gridflow claims $< --write-csv $@ --write-doc docs/reproduction.md
 
 $(FIGDIR)/fig_growth.png: $(GROWTH_CSV) bench/figures.py | $(STAMP)
 	$(BIN)/gridflow figures --sweep $< --out $(FIGDIR)
@@ -164,6 +171,8 @@ baseline: $(STAMP)
 	$(BIN)/gridflow sweep growth -o $(GROWTH_CSV)
 	$(BIN)/gridflow claims $(GROWTH_CSV) --write-csv results/claims_growth.csv --write-doc docs/reproduction.md
 	$(BIN)/gridflow claims $(SWEEP_CSV) $(SETUP_CSV) --write-terms results/paper_terms.csv --write-doc docs/reproduction.md
+	$(BIN)/gridflow sweep paper_setup_zoom -o $(ZOOM_CSV)
+	$(BIN)/gridflow claims $(ZOOM_CSV) --write-csv results/claims_paper_setup_zoom.csv --write-doc docs/reproduction.md
 
 test: $(STAMP) $(KERNELS) povray
 	$(PY) -m pytest

@@ -143,22 +143,49 @@ def _min_span(ax, factor: float) -> None:
 
 def setup_label(df: pd.DataFrame) -> str:
     """The setup a sweep table was run under (``bench.setups``), read from the generator
-    and estimator settings its rows record: the one whose every entry they carry."""
+    and estimator settings its rows record: the named setup whose every entry they carry,
+    or the one whose entries they mostly carry with the entries that differ named
+    (``"paper setup, zoom_correction True"``); ``"gridflow setup"`` otherwise."""
     import json
 
     from .setups import SETUPS
 
-    gen = json.loads(df.generator.iloc[0]) if "generator" in df and len(df) else {}
-    est = json.loads(df.estimator.iloc[0]) if "estimator" in df and len(df) else {}
+    from gridflow.estimator import EstimatorSettings
+    from gridflow.generators import SinusoidParams
+
+    # the rows record the settings that differ from the defaults: the rest are these
+    gen = {k: (list(v) if isinstance(v, tuple) else v)
+           for k, v in SinusoidParams().as_dict().items()}
+    est = dict(EstimatorSettings().as_dict())
+    if "generator" in df and len(df):
+        gen.update(json.loads(df.generator.iloc[0]))
+    if "estimator" in df and len(df):
+        est.update(json.loads(df.estimator.iloc[0]))
 
     def same(a, b):
         return (list(a) if isinstance(a, tuple) else a) == b
 
+    best = None
     for name, st in SETUPS.items():
-        if (st.base or st.estimator) and all(same(v, gen.get(k)) for k, v in st.base.items()) \
-                and all(same(v, est.get(k)) for k, v in st.estimator.items()):
+        entries = [(k, v, gen) for k, v in st.base.items()] + \
+            [(k, v, est) for k, v in st.estimator.items()]
+        if not entries:
+            continue
+        differ = [(k, got.get(k)) for k, v, got in entries if not same(v, got.get(k))]
+        if not differ:
             return f"{name} setup"
+        if len(differ) < len(entries) / 2 and (best is None or len(differ) < len(best[1])):
+            best = (name, differ)
+    if best:
+        return f"{best[0]} setup, " + ", ".join(f"{k} {v}" for k, v in best[1])
     return "gridflow setup"
+
+
+def _file_label(label: str) -> str:
+    """``setup_label`` as part of a file name: letters, digits and '_' only."""
+    import re
+
+    return re.sub(r"[^A-Za-z0-9]+", "_", label).strip("_")
 
 
 def fig3(df: pd.DataFrame, label: str = ""):
@@ -348,7 +375,7 @@ def draw_figures(out_dir, *, sweep: pd.DataFrame | None = None, fig2_too: bool =
             # a growth sweep: its own figure
             written += save(fig_growth(sweep, label=label), out_dir, "fig_growth" + suffix)
         else:
-            setup = "_" + setup_label(sweep).replace(" ", "_")
+            setup = "_" + _file_label(setup_label(sweep))
             written += save(fig3(sweep, label), out_dir, "fig3" + setup + suffix)
             written += save(fig4(sweep, label=label), out_dir, "fig4" + setup + suffix)
     if fig2_too:

@@ -28,9 +28,9 @@ ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "reproduction.md"
 RESULTS = ROOT / "results"
 SWEEPS = {"paper": "sweep_paper.csv", "paper_setup": "sweep_paper_setup.csv",
-          "growth": "sweep_growth.csv"}
+          "growth": "sweep_growth.csv", "paper_setup_zoom": "sweep_paper_setup_zoom.csv"}
 CLAIMS_CSV = {"paper": "claims.csv", "paper_setup": "claims_paper_setup.csv",
-              "growth": "claims_growth.csv"}
+              "growth": "claims_growth.csv", "paper_setup_zoom": "claims_paper_setup_zoom.csv"}
 
 
 def block(tag: str, text: str | None = None) -> str:
@@ -105,24 +105,36 @@ def _agrees(text: str, x: float) -> bool:
 
 
 def test_zoom_table_agrees_with_the_sweeps():
-    """The zoom-blur table's first and last columns quote the shipped sweeps."""
+    """Every number of the zoom-blur table quotes a shipped sweep: the paper setup without
+    and with the correction, and the gridflow setup."""
     text = DOC.read_text()
     sec = text[text.index("| | `paper` setup, as shipped |"):]
-    rows = {r.split("|")[1].strip(): [c.strip() for c in r.split("|")[2:-1]]
-            for r in sec.splitlines()[2:7]}
-    paper, grid = read_sweep_csv(RESULTS / SWEEPS["paper_setup"]), \
-        read_sweep_csv(RESULTS / SWEEPS["paper"])
-    bcc = rows["BCC's U_Z error at a2 = 0"]
-    assert _agrees(bcc[0], _q(paper, "bcc", "Uz", "a2", 0.0))
-    assert _agrees(bcc[2], _q(grid, "bcc", "Uz", "a2", 0.0))
-    hf_full = rows["HF's / full's U_Z error at a2 = 0"]
-    for col, df in ((0, paper), (2, grid)):
-        hf, full = (v.strip() for v in hf_full[col].split("/"))
+    cells = [re.split(r"(?<!\\)\|", r) for r in sec.splitlines()[2:7]]   # not at "\|"
+    rows = {c[1].strip(): [x.strip() for x in c[2:-1]] for c in cells}
+    sweeps = [read_sweep_csv(RESULTS / SWEEPS[n])
+              for n in ("paper_setup", "paper_setup_zoom", "paper")]
+    tables = [check_claims(df).set_index("id") for df in sweeps]
+    claims = [t.verdict for t in tables]
+    for col, df in enumerate(sweeps):
+        assert _agrees(rows["BCC's U_Z error at a2 = 0"][col], _q(df, "bcc", "Uz", "a2", 0.0))
+        hf, full = (v.strip() for v in rows["HF's / full's U_Z error at a2 = 0"][col].split("/"))
         assert _agrees(hf, _q(df, "hf", "Uz", "a2", 0.0))
         assert _agrees(full, _q(df, "full", "Uz", "a2", 0.0))
-    a1 = rows["full's Q_rel(a1) at a1 = 0.1"]
-    assert _agrees(a1[0], _q(paper, "full", "a1", "a1", 0.1))
-    assert _agrees(a1[2], _q(grid, "full", "a1", "a1", 0.1))
+        assert _agrees(rows["full's Q_rel(a1) at a1 = 0.1"][col],
+                       _q(df, "full", "a1", "a1", 0.1))
+        # the verdict opens each observation's cell
+        for obs in ("1", "9"):
+            cell = rows[f"observation {obs}"][col]
+            verdict = "partly" if cell.startswith("partly") else \
+                "does not hold" if cell.startswith("does not hold") else \
+                "holds" if cell.startswith("holds") else cell
+            assert verdict == claims[col][obs], (obs, col, cell)
+            # and the numbers in brackets are the claims table's
+            numbers = tables[col].numbers[obs]
+            for x in re.findall(r"from a1 = ([0-9.]+) on", cell):
+                assert f"below 0.25 % from a1 = {x} on" in numbers, (cell, numbers)
+            for q, lo, hi in re.findall(r"\\\|(a2x?)\\\| ([0-9.]+)–([0-9.]+)", cell):
+                assert f"|{q}| = {lo} and {hi}" in numbers, (cell, numbers)
 
 
 def test_claims_cli_refuses_ambiguous_outputs(tmp_path, capsys):

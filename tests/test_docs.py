@@ -147,3 +147,40 @@ def test_claims_cli_refuses_ambiguous_outputs(tmp_path, capsys):
                  str(tmp_path / "t.csv")]) == 2
     assert "no paper terms" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
+
+
+def test_filter_numbers_agree_with_the_filters():
+    """The derivative-filter paragraph's numbers (docs/reproduction.md, *Derivative
+    filters*), computed from the shipped pairs; printed to one or two digits."""
+    from gridflow.estimator.filters import get_filter_pair
+
+    text = DOC.read_text()
+    sec = text[text.index("### Derivative filters"):text.index("## Beyond the paper")]
+
+    def exp_error(name, a):
+        p = get_filter_pair(name)
+        k = np.arange(-p.radius, p.radius + 1)
+        return abs(np.dot(p.derivative, np.exp(a * k)) / np.dot(p.prefilter, np.exp(a * k))
+                   / a - 1)
+
+    def wave_error(name, wavelength=8):
+        p = get_filter_pair(name)
+        k = np.arange(-p.radius, p.radius + 1)
+        w = 2 * np.pi / wavelength
+        return abs(np.dot(p.derivative, np.sin(w * k)) / (w * np.dot(p.prefilter,
+                                                                       np.cos(w * k))) - 1)
+
+    m2 = float(np.dot(get_filter_pair("matched5").prefilter, np.arange(-2, 3) ** 2))
+    quoted = [  # (the phrase as printed, the number in it, the value it states)
+        ("`|D(a)/P(a)/a − 1|`: 3.2e-3 at `a = 0.5`", "3.2e-3", exp_error("fs5", 0.5)),
+        ("and 1.4e-2 at `a = 1` for Farid–Simoncelli", "1.4e-2", exp_error("fs5", 1.0)),
+        ("Its exponential error is 4e-6 at `a = 0.5`", "4e-6", exp_error("matched5", 0.5)),
+        ("and 2.5e-4 at `a = 1`,", "2.5e-4", exp_error("matched5", 1.0)),
+        ("`d/(ω p)` is 1 within 7e-5", "7e-5", wave_error("matched5")),
+        ("(`fs5`: 6e-3)", "6e-3", wave_error("fs5")),
+        ("`m₂ = Σ p_k k² = 0.67`", "0.67", m2),
+    ]
+    flat = re.sub(r"\s+", " ", sec)
+    for phrase, number, value in quoted:
+        assert phrase in flat, phrase
+        assert _agrees(number, value), (phrase, value)

@@ -288,6 +288,8 @@ def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
     import shutil
     import tempfile
 
+    from .io import temp_prefix
+
     import imageio.v3 as iio
 
     from .io import current_umask
@@ -306,7 +308,7 @@ def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
     folder.parent.mkdir(parents=True, exist_ok=True)
     # the whole scene goes to a temporary folder beside the target first, then into
     # place by renames: a failure part-way (a full disk) leaves no partial scene
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
+    tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(folder), suffix=".tmp", dir=folder.parent))
     try:
         files = []
         for i, nm in enumerate(names):

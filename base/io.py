@@ -52,7 +52,8 @@ def check_output(path, *, suffixes, inputs=(), what: str = "output") -> Path:
     one of ``suffixes`` (the format written), an existing path that is not a regular file
     (a folder, a device such as ``/dev/null``, a FIFO, a symbolic link: the atomic rename
     would replace it), a path that is one of ``inputs`` (no output replaces an input), and
-    a parent that exists but is not a folder.
+    a parent that exists but is not a folder, a name longer than the file system allows,
+    and a folder that cannot be written (read-only, or a read-only file system).
 
     Parameters
     ----------
@@ -69,9 +70,16 @@ def check_output(path, *, suffixes, inputs=(), what: str = "output") -> Path:
     pathlib.Path
     """
     path = Path(path)
+    limit = name_max(path.parent)
+    long = [part for part in path.parts if len(os.fsencode(part)) > limit]
+    if long:
+        raise OutputError(f"{what} {path}: the name {long[0][:40]}... has "
+                          f"{len(os.fsencode(long[0]))} bytes; this file system allows "
+                          f"{limit}")
     if suffixes is None:                    # an output folder
         if path.exists() and not path.is_dir():
             raise OutputError(f"{what} {path}: exists and is not a folder")
+        _check_writable(path if path.is_dir() else path.parent, path, what)
         return path
     suffixes = (suffixes,) if isinstance(suffixes, str) else tuple(suffixes)
     if path.suffix.lower() not in suffixes:
@@ -90,7 +98,46 @@ def check_output(path, *, suffixes, inputs=(), what: str = "output") -> Path:
         parent = parent.parent
     if not parent.is_dir():
         raise OutputError(f"{what} {path}: {parent} is not a folder")
+    _check_writable(parent, path, what)
     return path
+
+
+def _check_writable(folder: Path, path: Path, what: str) -> None:
+    """Refuse an output whose folder (or nearest existing ancestor) cannot be written:
+    the work would be done and then lost at the rename."""
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not os.access(folder, os.W_OK | os.X_OK):
+        why = "a read-only file system" if _read_only_fs(folder) else "not writable"
+        raise OutputError(f"{what} {path}: cannot write into {folder} ({why})")
+
+
+def _read_only_fs(folder: Path) -> bool:
+    try:
+        return bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
+    except OSError:
+        return False
+
+
+def name_max(folder) -> int:
+    """The longest file name the file system of ``folder`` (or its nearest existing
+    ancestor) allows (255 where it does not say)."""
+    folder = Path(folder)
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        return int(os.pathconf(folder, "PC_NAME_MAX"))
+    except (OSError, ValueError):
+        return 255
+
+
+def temp_prefix(path) -> str:
+    """The prefix of the temporary file or folder an output is written to before it is
+    renamed into place: the output's name, shortened so that the temporary name
+    (prefix, 8 random characters, ``.tmp``) fits the file system's name limit."""
+    path = Path(path)
+    keep = max(1, name_max(path.parent) - 16)
+    return f".{path.name[:keep]}."
 
 
 def check_input_file(path, what: str = "input") -> Path:
@@ -132,7 +179,7 @@ class atomic_write:
         except (FileExistsError, NotADirectoryError):
             raise OutputError(f"{self.path}: its folder {self.path.parent} cannot be made "
                               "(a file of that name is in the way)") from None
-        fd, self.tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp",
+        fd, self.tmp = tempfile.mkstemp(prefix=temp_prefix(self.path), suffix=".tmp",
                                         dir=self.path.parent)
         try:
             self.fh = os.fdopen(fd, self.mode)

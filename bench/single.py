@@ -178,6 +178,11 @@ def estimate_input(path, output, *, models=None, settings: dict | None = None, v
         if not (Path(path).is_dir() and is_hci_scene(Path(path))):
             raise UsageError(f"--views chooses the central views of an HCI scene; {path} is "
                              "not one (a volume or camera-grid folder uses all its views)")
+    # the outputs are checked before the input is read (a bad name, an unwritable folder
+    # or a name too long must not cost the decoding of a scene); again below, once the
+    # models are known
+    for p in (model_outputs(output, models).values() if models else [output]):
+        check_output(p, suffixes=".npz", inputs=[path], what="-o")
     if views is None:
         # all views where refocusing's sub-grids use the outer ones, else what the 5-tap
         # camera filters reach

@@ -710,3 +710,84 @@ def test_a_killed_render_leaves_nothing_behind(tmp_path):
     assert left == [], left
     assert load_folder(folder).volume.shape == (3, 3, 3, 24, 24)
     tried("leftovers of a killed render")
+
+
+# --- 8. outputs the file system refuses: checked before the input is read --------------------
+
+def _input_never_read(monkeypatch):
+    """Make reading any input fail loudly: an output check that comes after the read shows
+    up as this error instead of the expected message."""
+    import gridflow.bench.single as single
+
+    def refuse(*a, **k):
+        raise AssertionError("the input was read before the outputs were checked")
+
+    monkeypatch.setattr(single, "load_input", refuse)
+
+
+@pytest.mark.parametrize("models", [None, "all"])
+def test_a_name_too_long_is_refused_before_any_work(tmp_path, small_volume, capsys,
+                                                    monkeypatch, models):
+    """A name over the file system's limit (255 bytes here) is refused before the input
+    is read; with --model all the longest per-model name counts."""
+    from gridflow.io import name_max
+
+    limit = name_max(tmp_path)
+    stem = "a" * (limit - len(".npz") - (len("_full") - 1 if models else -1))
+    _input_never_read(monkeypatch)
+    before = _snapshot(tmp_path)
+    args = ["estimate", small_volume, "-o", tmp_path / f"{stem}.npz"]
+    _cli_fails(args + (["--model", models] if models else []), capsys, "this file system allows")
+    assert _snapshot(tmp_path) == before
+    tried("output name too long (estimate)")
+
+
+def test_the_longest_legal_name_is_written_and_leaves_no_temporary(tmp_path, small_volume):
+    """A name of exactly the limit: the temporary name beside it is shortened to fit, the
+    output is written, nothing else is left."""
+    from gridflow.io import name_max
+
+    out = tmp_path / ("b" * (name_max(tmp_path) - 4) + ".npz")
+    assert main(["estimate", str(small_volume), "-o", str(out), "--sigma", "2",
+                 "--window", "9"]) == 0
+    assert [p.name for p in tmp_path.iterdir()] == [out.name]
+    tried("output name at the limit (estimate)")
+
+
+def test_an_unwritable_folder_is_refused_before_any_work(tmp_path, small_volume, capsys,
+                                                         monkeypatch):
+    """As root a mode-0555 folder is writable, so the check is made to see one that is not
+    (os.access says no); the real read-only file system follows."""
+    target = tmp_path / "ro"
+    target.mkdir()
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda p, m, **k: False if Path(p) == target
+                        else real(p, m, **k))
+    _input_never_read(monkeypatch)
+    _cli_fails(["estimate", small_volume, "-o", target / "e.npz"], capsys,
+               f"cannot write into {target}")
+    assert list(target.iterdir()) == []
+    tried("output folder not writable (estimate)")
+
+
+def test_a_read_only_file_system_is_refused_before_any_work(tmp_path, small_volume, capsys,
+                                                            monkeypatch):
+    """A read-only bind mount (needs root and mount; where the machine forbids it the
+    test says so and is skipped, visibly)."""
+    src, mnt = tmp_path / "src", tmp_path / "mnt"
+    src.mkdir()
+    mnt.mkdir()
+    r = subprocess.run(["mount", "--bind", str(src), str(mnt)], capture_output=True)
+    if r.returncode:
+        pytest.skip(f"cannot make a read-only bind mount here: {r.stderr.decode().strip()}")
+    try:
+        r = subprocess.run(["mount", "-o", "remount,ro,bind", str(mnt)], capture_output=True)
+        if r.returncode:
+            pytest.skip(f"cannot remount read-only here: {r.stderr.decode().strip()}")
+        _input_never_read(monkeypatch)
+        _cli_fails(["estimate", small_volume, "-o", mnt / "e.npz"], capsys,
+                   "a read-only file system")
+        _cli_fails(["generate", "-o", mnt / "v.npz"], capsys, "a read-only file system")
+        tried("read-only file system (estimate, generate)", 2)
+    finally:
+        subprocess.run(["umount", str(mnt)], capture_output=True)

@@ -134,9 +134,18 @@ def _geometry(params: dict, path: Path, width: int) -> dict:
         raise HCIError(f"{path}: missing or bad key {exc} (needs intrinsics focal_length_mm, "
                        "sensor_size_mm, image_resolution_x_px; extrinsics baseline_mm, "
                        "focus_distance_m)") from None
-    if not (f_mm > 0 and sensor > 0 and b > 0 and zf > 0 and res > 0):
-        raise HCIError(f"{path}: focal length, sensor size, baseline, focus distance and "
-                       "resolution must be positive")
+    for sec, key, value in (("intrinsics", "focal_length_mm", f_mm),
+                            ("intrinsics", "sensor_size_mm", sensor),
+                            ("intrinsics", "image_resolution_x_px", res),
+                            ("extrinsics", "baseline_mm", b),
+                            ("extrinsics", "focus_distance_m", zf)):
+        if not (np.isfinite(value) and value > 0):
+            raise HCIError(f"{path}: [{sec}] {key} = {params[sec][key]}: expected a finite "
+                           "positive number")
+    if not np.isfinite(f_mm / sensor * res):
+        raise HCIError(f"{path}: [intrinsics] focal_length_mm / sensor_size_mm * "
+                       f"image_resolution_x_px = {f_mm / sensor * res}: not a finite focal "
+                       "length in pixels")
     if res != width:
         raise HCIError(f"{path}: image_resolution_x_px = {res}, but the views are {width} "
                        "pixels wide")

@@ -178,6 +178,12 @@ def _read_image(path: Path) -> tuple[np.ndarray, str]:
         out = np.asarray(img, np.float64) / 65535.0
     elif kind in ("float32", "float64"):
         out = np.asarray(img, np.float64)
+        bad = ~np.isfinite(out)
+        if bad.any():
+            y, x = np.argwhere(bad)[0]
+            raise LoaderError(f"{path}: {int(bad.sum())} non-finite pixel(s) (NaN or inf), "
+                              f"the first at (y, x) = ({y}, {x}); the estimator needs "
+                              "finite intensities")
     else:
         raise LoaderError(f"{path}: unsupported pixel type {kind} (8/16-bit PNG or float TIFF)")
     return out, kind

@@ -16,6 +16,7 @@ check_output`) and writes atomically; the CLI only parses arguments and prints.
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -122,6 +123,18 @@ _SINGLE_PASS_ONLY = {"temporal_radius": "--temporal-radius", "ref_frame": "--ref
                      "combine": "--combine", "motion": "--motion"}
 
 
+@contextmanager
+def _naming(path):
+    """An error the estimator finds in the data (non-finite values, a pixel type it cannot
+    use) names the input it came from."""
+    try:
+        yield
+    except InputError as exc:
+        if str(path) in str(exc):
+            raise
+        raise InputError(f"{path}: {exc}") from None
+
+
 def estimate_input(path, output, *, models=None, settings: dict | None = None, views=None,
                    shears=None, select: str | None = None, fill: bool = True,
                    median: int = 3, progress: bool = False) -> EstimateReport:
@@ -196,9 +209,10 @@ def estimate_input(path, output, *, models=None, settings: dict | None = None, v
                      "grid with an odd number of views); the single pass")
     if refocus:
         check_output(output, suffixes=".npz", inputs=[path], what="-o")
-        return _estimate_refocused(path, data, output, models, settings,
-                                   "auto" if shears is None else shears, select, progress,
-                                   fill=fill, median=median)
+        with _naming(path):
+            return _estimate_refocused(path, data, output, models, settings,
+                                       "auto" if shears is None else shears, select,
+                                       progress, fill=fill, median=median)
     if models is None:
         models = ("bcc",) if T == 1 else ("full",)
     outputs = model_outputs(output, models)
@@ -208,8 +222,10 @@ def estimate_input(path, output, *, models=None, settings: dict | None = None, v
         # an image folder's grid.json may name its reference frame (--ref-frame overrides)
         settings["ref_frame"] = data.meta.get("ref_frame")
     t0 = time.perf_counter()
-    ests = estimate_models(data.volume, data.focal_length, data.camera_spacing,
-                           models=models, principal_point=data.principal_point, **settings)
+    with _naming(path):
+        ests = estimate_models(data.volume, data.focal_length, data.camera_spacing,
+                               models=models, principal_point=data.principal_point,
+                               **settings)
     report = EstimateReport(lines=notes, seconds=time.perf_counter() - t0)
     geometry = data.meta.get("hci")
     for m, est in ests.items():

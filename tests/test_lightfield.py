@@ -458,6 +458,20 @@ def test_wild_shears_and_ranges_are_refused_at_once(tmp_path, capsys):
         err = capsys.readouterr().err
         assert str(bad / "parameters.cfg") in err and match in err
         assert not (tmp_path / f"b{i}.npz").exists()
+    # the geometry's own numbers: each key that is not finite and positive is named
+    for j, (sec, key, value) in enumerate((("intrinsics", "focal_length_mm", "1e999"),
+                                           ("intrinsics", "sensor_size_mm", "nan"),
+                                           ("extrinsics", "baseline_mm", "-30"),
+                                           ("extrinsics", "focus_distance_m", "0"))):
+        bad = tmp_path / f"geo{j}"
+        g = {s_: dict(v) for s_, v in geometry.items()}
+        g[sec][key] = value
+        write_hci(bad, views, disparity=truth, parameters=g)
+        assert main(["estimate", str(bad), "-o", str(tmp_path / f"g{j}.npz")]) == 2
+        err = capsys.readouterr().err
+        assert f"{bad / 'parameters.cfg'}: [{sec}] {key} = " in err, err
+        assert "expected a finite positive number" in err
+        assert not (tmp_path / f"g{j}.npz").exists()
 
 
 def test_external_peer_plumbing(tmp_path, monkeypatch, capsys):

@@ -127,3 +127,36 @@ def test_truth_of_wrong_shape(tmp_path):
     _make(tmp_path / "f", truth={"Z": "Z.npy"})
     np.save(tmp_path / "f" / "Z.npy", np.zeros((3, 3)))
     _expect(tmp_path / "f", r"Z.npy: truth map has shape \(3, 3\)")
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+def test_a_non_finite_pixel_is_named_by_file(tmp_path, value):
+    """A float image with a NaN or inf pixel: the error names the file and the pixel
+    (was: an index into the whole volume, after loading all of it)."""
+    f = tmp_path / "f"
+    f.mkdir()
+    vol = np.random.default_rng(2).random((3, 1, 3, 8, 9)).astype(np.float32)
+    vol[1, 0, 2, 5, 4] = value
+    for t in range(3):
+        for j in range(3):
+            iio.imwrite(f / f"frame{t}_cam{j}_0.tif", vol[t, 0, j])
+    (f / "grid.json").write_text(json.dumps({
+        "focal_length": 100, "camera_spacing": [1, 0], "grid": [1, 3], "frames": 3,
+        "pattern": "frame{t}_cam{sx}_{sy}.tif"}))
+    _expect(f, r"frame1_cam2_0\.tif: 1 non-finite pixel\(s\) \(NaN or inf\), the first at "
+               r"\(y, x\) = \(5, 4\)")
+
+
+def test_a_non_finite_volume_names_the_file(tmp_path, capsys):
+    """A volume file with NaN values: the estimator's error names the file."""
+    from gridflow.bench.cli import main
+    from gridflow.generators import make_sinusoid
+    from gridflow.io import save_volume
+
+    sv = make_sinusoid(height=32, width=32, frames=5, grid=(3, 3))
+    sv.volume[2, 1, 1, 3, 3] = np.nan
+    save_volume(tmp_path / "v.npz", sv)
+    assert main(["estimate", str(tmp_path / "v.npz"), "-o", str(tmp_path / "e.npz")]) == 2
+    err = capsys.readouterr().err
+    assert f"{tmp_path / 'v.npz'}: volume has 1 non-finite values" in err, err
+    assert not (tmp_path / "e.npz").exists()

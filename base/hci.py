@@ -209,9 +209,13 @@ def load_hci(folder, views: int | None = None) -> GridVolume:
                 if missing else "")
         raise HCIError(f"{folder}: expected input_Cam000.png ... for an odd n x n grid of "
                        f"views, found {count} views{lack}")
+    if n < 3:
+        raise HCIError(f"{folder}: a {n} x {n} grid of views; a light field needs at least "
+                       "3 x 3 (input_Cam000.png ... input_Cam008.png)")
     use = n if views is None else int(views)
     if use % 2 == 0 or not 3 <= use <= n:
-        raise HCIError(f"views must be odd, at least 3 and at most the grid's {n}, got {views}")
+        raise HCIError(f"{folder}: views = {views} (--views): expected an odd number from 3 "
+                       f"to the scene's {n}")
     c0 = (n - use) // 2
     chosen = [found[r * n + c] for r in range(c0, c0 + use) for c in range(c0, c0 + use)]
     # a FIFO would block the read, a device (a link to /dev/zero) never end it

@@ -360,11 +360,13 @@ def cmd_peers(a) -> int:
         raise UsageError(f"gridflow peers needs the peer methods' packages ({e.name} is "
                          "missing): pip install 'gridflow[peers]'") from None
 
-    from .peers import run_peers, score_hci_scene
+    from .peers import check_hci_scene, run_peers, score_hci_scene
 
     for path in (a.csv_depth, a.csv_motion):
         check_output(path, suffixes=".csv", what="output")
     check_output(a.fig_dir, suffixes=None, what="--fig-dir")
+    # a bad --hci scene is refused before the minutes of the other peers and their files
+    scene = check_hci_scene(a.hci) if a.hci else None
     r = run_peers(a.cache, csv_depth=a.csv_depth, csv_motion=a.csv_motion,
                   fig_dir=a.fig_dir, write_hci=a.write_hci, progress=not a.no_progress)
     print(r.label)
@@ -381,7 +383,8 @@ def cmd_peers(a) -> int:
     for p in r.written:
         print(f"wrote {p}")
     if a.hci:
-        desc, table = score_hci_scene(a.hci, env=a.peers_env, progress=not a.no_progress)
+        desc, table = score_hci_scene(a.hci, env=a.peers_env, progress=not a.no_progress,
+                                      scene=scene)
         print(f"{desc}:")
         print(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
     return 0

@@ -39,7 +39,7 @@ from gridflow.estimator import MODELS
 from .metrics import evaluate, hci_metrics
 
 __all__ = ["epi_structure_tensor", "DEPTH_METHODS", "run_depth", "compare_motion",
-           "MOTION_CASES", "run_peers", "PeersReport", "score_hci_scene"]
+           "MOTION_CASES", "run_peers", "PeersReport", "score_hci_scene", "check_hci_scene"]
 
 
 def _gauss(sigma: float, rmax: int | None = None) -> np.ndarray:
@@ -434,7 +434,20 @@ def _gridflow_default(views, disp_range):
     return res["disparity"], res["confidence"]
 
 
-def score_hci_scene(folder, *, env=PEERS_ENV, progress=True) -> tuple[str, pd.DataFrame]:
+def check_hci_scene(folder):
+    """The HCI scene ``folder`` loaded and checked for what :func:`score_hci_scene` needs
+    (views, ``gt_disp_lowres.pfm``): run first, so that a bad scene is refused before any
+    other work and before anything is written."""
+    from gridflow.hci import HCIError, load_hci
+
+    lf = load_hci(folder)
+    if "disparity" not in lf.truth:
+        raise HCIError(f"{folder}: no gt_disp_lowres.pfm to score against")
+    return lf
+
+
+def score_hci_scene(folder, *, env=PEERS_ENV, progress=True,
+                    scene=None) -> tuple[str, pd.DataFrame]:
     """Every depth method on an HCI scene with truth (``gt_disp_lowres.pfm``): gridflow's
     default first (the command ``gridflow estimate SCENE`` runs), the peers depthy and
     plenpy where their environment ``env`` exists, then gridflow's other choices over the
@@ -447,19 +460,18 @@ def score_hci_scene(folder, *, env=PEERS_ENV, progress=True) -> tuple[str, pd.Da
     description : str
     table : pandas.DataFrame
         One row per method and views used: :func:`hci_metrics` and ``seconds``.
+
+    ``scene``: the scene already loaded by :func:`check_hci_scene` (else it is loaded).
     """
     import sys
 
     from gridflow.estimator.lightfield import stated_shears
-    from gridflow.hci import HCIError, load_hci
 
     def say(text):
         if progress:
             print(text, file=sys.stderr, flush=True)
 
-    lf = load_hci(folder)
-    if "disparity" not in lf.truth:
-        raise HCIError(f"{folder}: no gt_disp_lowres.pfm to score against")
+    lf = check_hci_scene(folder) if scene is None else scene
     views, gt = lf.volume[0], lf.truth["disparity"]
     n = views.shape[0]
     disp_range = (lf.meta.get("hci") or {}).get("disp_range")

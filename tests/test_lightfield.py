@@ -73,8 +73,17 @@ def test_bad_scene_folders_are_named(tmp_path):
     with pytest.raises(HCIError, match="odd n x n"):
         load_hci(tmp_path / "b")
     write_hci(tmp_path / "c", views)
-    with pytest.raises(HCIError, match="views must be odd"):
+    with pytest.raises(HCIError, match=r"c: views = 2 \(--views\): expected an odd number "
+                                       "from 3 to the scene's 3"):
         load_hci(tmp_path / "c", views=2)
+    # one view is not a light field: said so, naming the folder (was: "views must be odd,
+    # at least 3 and at most the grid's 1, got None", with no --views given)
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "input_Cam000.png").write_bytes((tmp_path / "c" /
+                                                       "input_Cam000.png").read_bytes())
+    with pytest.raises(HCIError, match=r"d: a 1 x 1 grid of views; a light field needs at "
+                                       r"least 3 x 3"):
+        load_hci(tmp_path / "d")
     (tmp_path / "c" / "parameters.cfg").write_text("[intrinsics]\nfocal_length_mm = 1\n")
     with pytest.raises(HCIError, match="parameters.cfg: missing or bad key"):
         load_hci(tmp_path / "c")
@@ -651,3 +660,29 @@ def test_a_scene_missing_a_view_is_refused_naming_it(tmp_path, gone):
                                                      f"input_Cam{gone:03d}.png"):
         estimate_input(tmp_path / "s", tmp_path / "out.npz")
     assert not (tmp_path / "out.npz").exists()
+
+
+def test_peers_refuse_a_bad_scene_before_any_work(tmp_path, capsys, monkeypatch):
+    """gridflow peers --hci BAD: refused at once, before the other peers run and before
+    their CSVs and figures are written (was: after 99 s, with the files written)."""
+    pytest.importorskip("cv2")
+    import gridflow.bench.peers as peers
+    from gridflow.bench.cli import main
+
+    def never(*a, **k):
+        raise AssertionError("the other peers ran before the scene was checked")
+
+    monkeypatch.setattr(peers, "run_peers", never)
+    views, _ = plane_views(n=3, size=24)
+    write_hci(tmp_path / "nogt", views)                 # views, but no truth to score
+    (tmp_path / "one").mkdir()
+    (tmp_path / "one" / "input_Cam000.png").write_bytes(
+        (tmp_path / "nogt" / "input_Cam000.png").read_bytes())
+    for scene, match in (("nogt", "no gt_disp_lowres.pfm"), ("one", "a 1 x 1 grid"),
+                         ("none", "not a folder")):
+        out = tmp_path / f"out_{scene}"
+        assert main(["peers", "--hci", str(tmp_path / scene), "--csv-depth",
+                     str(out / "d.csv"), "--csv-motion", str(out / "m.csv"), "--fig-dir",
+                     str(out / "f"), "--no-progress"]) == 2
+        assert match in capsys.readouterr().err
+        assert not out.exists()

@@ -791,3 +791,58 @@ def test_a_read_only_file_system_is_refused_before_any_work(tmp_path, small_volu
         tried("read-only file system (estimate, generate)", 2)
     finally:
         subprocess.run(["umount", str(mnt)], capture_output=True)
+
+
+# --- 9. a signal at a random time during a single estimate ---------------------------------
+
+SIGNAL_TRIALS = 50
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("models", [None, "all"])
+def test_a_signal_at_random_times_leaves_the_old_outputs_or_a_whole_new_set(
+        tmp_path, small_volume, models):
+    """``gridflow estimate`` (one output, and --model all: three) is sent SIGTERM or SIGINT
+    at a random time between its start and its end, 50 times.  Every time the output
+    folder holds exactly the expected outputs, each complete (it loads), all of them
+    from the old run (sigma 2) or all from the new one (sigma 3), and nothing else (no
+    temporary file, no lock, no half of a set)."""
+    from gridflow.io import load_estimate
+
+    out = tmp_path / "out"
+    out.mkdir()
+    names = ["e.npz"] if models is None else ["e_bcc.npz", "e_full.npz", "e_hf.npz"]
+
+    def command(sigma):
+        cmd = [sys.executable, "-m", "gridflow.bench.cli", "estimate", str(small_volume),
+               "-o", str(out / "e.npz"), "--sigma", str(sigma), "--window", "9"]
+        return cmd + (["--model", models] if models else [])
+
+    def state():
+        assert sorted(p.name for p in out.iterdir()) == names, sorted(out.iterdir())
+        sigmas = {load_estimate(out / n)[2]["settings"]["sigma"] for n in names}
+        assert len(sigmas) == 1, f"a set of outputs from different runs: {sigmas}"
+        return sigmas.pop()
+
+    assert subprocess.run(command(2), cwd=ROOT, capture_output=True).returncode == 0
+    old = {n: (out / n).read_bytes() for n in names}
+    t0 = time.monotonic()
+    assert subprocess.run(command(3), cwd=ROOT, capture_output=True).returncode == 0
+    duration = time.monotonic() - t0
+    assert state() == 3
+    rng = np.random.default_rng(26)
+    seen = {2.0: 0, 3.0: 0}
+    for trial in range(SIGNAL_TRIALS):
+        for n, data in old.items():                      # the old set back in place
+            (out / n).write_bytes(data)
+        sig = (signal.SIGTERM, signal.SIGINT)[trial % 2]
+        p = subprocess.Popen(command(3), cwd=ROOT, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.PIPE, text=True)
+        time.sleep(rng.uniform(0, duration))
+        p.send_signal(sig)
+        _, err = p.communicate(timeout=60)
+        seen[state()] += 1
+    # both outcomes occurred: the signals fell before and after the rename
+    assert seen[2.0] and seen[3.0], seen
+    tried(f"signal at a random time during estimate ({'--model all' if models else 'one model'})",
+          SIGNAL_TRIALS)

@@ -170,3 +170,21 @@ def test_model_all_outputs_replace_as_a_set(tmp_path, monkeypatch, capsys):
                  "-o", str(out / "e.npz")]) == 0
     assert sorted(p.name for p in out.iterdir()) == sorted(names)
     assert all((out / n).read_bytes()[:2] == b"PK" for n in names)
+
+
+@pytest.mark.parametrize("key", ["volume", "focal_length", "camera_spacing"])
+def test_an_object_array_names_the_file_and_key(tmp_path, capsys, key):
+    """A volume file whose array holds Python objects (a pickle, never loaded): the error
+    names the file and the key (it named neither)."""
+    from gridflow.bench.cli import main
+    from gridflow.io import save_volume
+
+    save_volume(tmp_path / "good.npz", make_sinusoid(height=16, width=20, grid=(3, 3),
+                                                     frames=5))
+    arrays = dict(np.load(tmp_path / "good.npz", allow_pickle=False))
+    arrays[key] = np.array(arrays[key].tolist() if arrays[key].ndim else [1.0], dtype=object)
+    np.savez(tmp_path / "bad.npz", **arrays)
+    assert main(["estimate", str(tmp_path / "bad.npz"), "-o", str(tmp_path / "e.npz")]) == 2
+    err = capsys.readouterr().err
+    assert str(tmp_path / "bad.npz") in err and f"'{key}'" in err, err
+    assert not (tmp_path / "e.npz").exists()

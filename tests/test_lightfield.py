@@ -686,3 +686,29 @@ def test_peers_refuse_a_bad_scene_before_any_work(tmp_path, capsys, monkeypatch)
                      str(out / "f"), "--no-progress"]) == 2
         assert match in capsys.readouterr().err
         assert not out.exists()
+
+
+def test_a_three_by_three_scene_runs_and_sigma_errors_quote_the_value(tmp_path, capsys):
+    """A 3 x 3 scene: the default, --select lines and --select occlusion run (the first
+    failed with "views must be ... at most the grid's 3, got 5" with no --views given);
+    a bad --sigma is quoted as given (it was reported as -2.0 for -1)."""
+    from gridflow.bench.cli import main
+    from gridflow.io import load_estimate
+
+    views, truth = layered_views(n=3, size=32, band=(10, 20))
+    scene = tmp_path / "s"
+    write_hci(scene, views, disparity=truth)
+    for i, extra in enumerate(([], ["--select", "lines"],
+                               ["--shears", "-1", "1", "--select", "occlusion"])):
+        out = tmp_path / f"e{i}.npz"
+        assert main(["estimate", str(scene), "--no-progress", "-o", str(out), *extra]) == 0, \
+            capsys.readouterr().err
+        maps, interior, _ = load_estimate(out)
+        assert np.isfinite(maps["disparity"][interior]).mean() > 0.9
+    capsys.readouterr()
+    for bad in ("-1", "0", "nan"):
+        assert main(["estimate", str(scene), "--sigma", bad, "-o",
+                     str(tmp_path / "x.npz")]) == 2
+        err = capsys.readouterr().err
+        assert f"got {float(bad)}" in err, err
+    assert not (tmp_path / "x.npz").exists()

@@ -344,7 +344,9 @@ class atomic_write_set:
     success they are renamed over their paths while an exclusive lock (``flock``) is held
     on the first path's folder, so that two processes writing the same set one after the
     other leave the later one's set whole.  On any failure every temporary file is removed
-    and no path is touched.
+    and no path is touched.  SIGINT and SIGTERM are held back during the renames (a
+    signal there would leave a mixed set); only SIGKILL, which nothing can hold back, can
+    stop them part-way.
     """
 
     def __init__(self, paths, mode: str = "wb"):
@@ -379,7 +381,12 @@ class atomic_write_set:
         except BaseException:
             self._discard()
             raise
+        import signal
+
         fd = os.open(self.writers[0].path.parent, os.O_RDONLY)
+        # an interrupt between two renames would leave a set of outputs from two runs:
+        # SIGINT and SIGTERM wait until the renames are done (then they act as usual)
+        held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
         try:
             fcntl.flock(fd, fcntl.LOCK_EX)
             mode = 0o666 & ~current_umask()
@@ -391,6 +398,7 @@ class atomic_write_set:
             raise
         finally:
             os.close(fd)            # releases the lock
+            signal.pthread_sigmask(signal.SIG_SETMASK, held)
         return False
 
 

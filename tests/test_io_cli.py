@@ -1,6 +1,8 @@
 """Interchange files and the command line, end to end."""
 
 
+import os
+
 import numpy as np
 import pytest
 
@@ -188,3 +190,38 @@ def test_an_object_array_names_the_file_and_key(tmp_path, capsys, key):
     err = capsys.readouterr().err
     assert str(tmp_path / "bad.npz") in err and f"'{key}'" in err, err
     assert not (tmp_path / "e.npz").exists()
+
+
+def test_a_signal_between_the_renames_of_a_set_waits_for_them(tmp_path, capsys, monkeypatch):
+    """SIGTERM arriving after the first of --model all's three renames: the renames
+    finish (all three outputs new), then the command ends as interrupted (exit 143, one
+    line).  Without holding the signal back the first output would be new and the other
+    two old: a set from two runs."""
+    import signal
+
+    import gridflow.io as gio
+
+    vol = tmp_path / "v.npz"
+    assert main(["generate", "--height", "48", "--width", "48", "-o", str(vol)]) == 0
+    out = tmp_path / "out"
+    out.mkdir()
+    names = [f"e_{m}.npz" for m in ("bcc", "hf", "full")]
+    for n in names:
+        (out / n).write_bytes(b"earlier run")
+    real = os.replace
+    calls = []
+
+    def replace_then_signal(src, dst):
+        real(src, dst)
+        calls.append(dst)
+        if len(calls) == 1 and str(dst).endswith(".npz"):
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(gio.os, "replace", replace_then_signal)
+    capsys.readouterr()
+    assert main(["estimate", str(vol), "--model", "all", "--sigma", "2", "--window", "9",
+                 "--no-progress", "-o", str(out / "e.npz")]) == 143
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "interrupted (SIGTERM)" in err[0], err
+    assert sorted(p.name for p in out.iterdir()) == sorted(names)
+    assert all((out / n).read_bytes()[:2] == b"PK" for n in names)

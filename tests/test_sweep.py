@@ -53,7 +53,7 @@ def test_repository_specs_are_valid():
 
 
 def test_shipped_specs_are_found_by_name(tmp_path, monkeypatch):
-    assert set(shipped_specs()) == {"growth", "paper", "paper_setup", "smoke"}
+    assert set(shipped_specs()) == {"growth", "paper", "paper_setup", "paper_setup_zoom", "smoke"}
     assert SweepSpec.from_toml("paper") == SweepSpec.from_toml("bench/sweeps/paper.toml")
     # a file of that name in the working folder wins over the shipped spec
     monkeypatch.chdir(tmp_path)

@@ -712,3 +712,24 @@ def test_a_three_by_three_scene_runs_and_sigma_errors_quote_the_value(tmp_path, 
         err = capsys.readouterr().err
         assert f"got {float(bad)}" in err, err
     assert not (tmp_path / "x.npz").exists()
+
+
+def test_a_scene_too_large_for_memory_is_refused_after_its_first_view(tmp_path, monkeypatch):
+    """The memory check comes after the first view is decoded, before the others (all 81
+    were decoded first): with a memory too small for the 3 x 3 views of 32 x 32 only one
+    view is read, and the error names the scene and the need."""
+    import gridflow.hci as hci
+    import gridflow.loader as loader
+
+    views, truth = layered_views(n=3, size=32, band=(10, 20))
+    write_hci(tmp_path / "s", views, disparity=truth)
+    need = 3 * 3 * 32 * 32 * 8                        # float64 views
+    reads = []
+    real = loader._read_image
+    monkeypatch.setattr(loader, "_read_image", lambda p: (reads.append(p), real(p))[1])
+    monkeypatch.setattr(hci, "physical_memory", lambda: 2 * need - 2)
+    with pytest.raises(HCIError, match=r"s: 3x3 views of 32x32 need more than half"):
+        load_hci(tmp_path / "s")
+    assert len(reads) == 1
+    monkeypatch.setattr(hci, "physical_memory", lambda: 2 * need)
+    assert load_hci(tmp_path / "s").volume.shape == (1, 3, 3, 32, 32)

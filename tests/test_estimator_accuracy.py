@@ -139,6 +139,9 @@ DOC_CASES = {
                                               "q_rel"),
                                              ({"grid": (3, 3), "frames": 5}, "full", "Uz",
                                               "q_rel")],
+    # one seed of the generator's noise: deterministic, so held like the others
+    "σ_n = 0.025 (seed 0)": [({"noise": 0.025, "seed": 0}, "full", "Z", "q_rel"),
+                             ({"noise": 0.025, "seed": 0}, "full", "Uz", "q_rel")],
 }
 
 
@@ -168,3 +171,31 @@ def test_accuracy_table_states_what_the_estimator_does(run, case):
         got = s[model][quantity][measure]
         assert abs(got / float(text) - 1) <= DOC_TOL, \
             f"{case}: {model} {measure}({quantity}) measures {got:.3g}, the doc says {text}"
+
+
+def test_systematic_effects_paragraph_states_what_the_estimator_does(run):
+    """The numbers of "Two systematic effects worth knowing" (docs/reproduction.md),
+    measured, to their printed precision as above (the floor at U_Z = 0 only as roundoff:
+    far below the 1e-6 left at U_Z = 0.2, whatever the BLAS)."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "reproduction.md").read_text()
+    para = re.sub(r"\s+", " ", text[text.index("Two systematic effects worth knowing"):])
+    para = para[:para.index("## ")]
+
+    def q(kw, quantity, measure="q_abs"):
+        return run(**kw)[2]["full"][quantity][measure]
+
+    off = {"est_zoom_correction": False}
+    for phrase, value in (
+            ("absolute error floor of 1.6e-4", q(off, "a1")),
+            ("(2.25e-4 at `U_Z = 0.2` with offset 1)", q({**off, "U_Z": 0.2, "offset": 1.0},
+                                                         "a1")),
+            ("(1.1e-6 at `U_Z = 0.2` with offset 1", q({"U_Z": 0.2, "offset": 1.0}, "a1")),
+            ("Q_rel(Z) = 1.9e-3 at `a1 = 0.5`", q({"a1": 0.5}, "Z", "q_rel"))):
+        assert phrase in para, phrase
+        printed = float(re.search(r"\d+(?:\.\d+)?e-\d+", phrase).group())
+        assert abs(value / printed - 1) <= DOC_TOL, (phrase, value)
+    assert "roundoff (7e-19 here) at `U_Z = 0`" in para
+    assert q({"U_Z": 0.0}, "a1") < 1e-15

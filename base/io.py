@@ -22,6 +22,7 @@ import json
 import os
 import tempfile
 import zipfile
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -381,25 +382,55 @@ class atomic_write_set:
         except BaseException:
             self._discard()
             raise
-        import signal
-
         fd = os.open(self.writers[0].path.parent, os.O_RDONLY)
-        # an interrupt between two renames would leave a set of outputs from two runs:
-        # SIGINT and SIGTERM wait until the renames are done (then they act as usual)
-        held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX)
-            mode = 0o666 & ~current_umask()
-            for w in self.writers:
-                os.chmod(w.tmp, mode)
-                os.replace(w.tmp, w.path)
+            # an interrupt between two renames would leave a set of outputs from two
+            # runs: SIGINT and SIGTERM wait until the renames are done
+            with _signals_deferred():
+                fcntl.flock(fd, fcntl.LOCK_EX)
+                mode = 0o666 & ~current_umask()
+                for w in self.writers:
+                    os.chmod(w.tmp, mode)
+                    os.replace(w.tmp, w.path)
         except BaseException:
             self._discard()
             raise
         finally:
             os.close(fd)            # releases the lock
-            signal.pthread_sigmask(signal.SIG_SETMASK, held)
         return False
+
+
+@contextmanager
+def _signals_deferred():
+    """SIGINT and SIGTERM received inside the block are acted on when it ends.
+
+    The Python-level handlers are swapped for ones that only note the signal (blocking
+    it with ``pthread_sigmask`` is not enough: in a process with other threads, BLAS's
+    or numba's, the kernel hands a process-wide signal to one that does not block it).
+    Handlers can only be set from the main thread; elsewhere the block runs as it is.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    kinds = (signal.SIGINT, signal.SIGTERM)
+    got: list[int] = []
+    old = {s: signal.getsignal(s) for s in kinds}
+    for s in kinds:
+        signal.signal(s, lambda signum, frame: got.append(signum))
+    try:
+        yield
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler)
+        if got:
+            handler = old[got[0]]
+            if callable(handler):
+                handler(got[0], None)
+            elif handler == signal.SIG_DFL:
+                signal.raise_signal(got[0])
 
 
 def load_estimate(path) -> tuple[dict[str, np.ndarray], np.ndarray, dict]:

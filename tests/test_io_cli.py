@@ -224,4 +224,5 @@ def test_a_signal_between_the_renames_of_a_set_waits_for_them(tmp_path, capsys, 
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "interrupted (SIGTERM)" in err[0], err
     assert sorted(p.name for p in out.iterdir()) == sorted(names)
-    assert all((out / n).read_bytes()[:2] == b"PK" for n in names)
+    assert all((out / n).read_bytes()[:2] == b"PK" for n in names), \
+        ({n: (out / n).read_bytes()[:12] for n in names}, calls)

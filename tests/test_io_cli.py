@@ -136,6 +136,19 @@ def test_cli_errors_are_clear(tmp_path, capsys):
     assert "exponent" in capsys.readouterr().err
 
 
+def _earlier_model_all_set(tmp_path):
+    """A volume and an output folder holding an earlier run's --model all set (three
+    files reading b"earlier run"): ``(volume, folder, names)``."""
+    vol = tmp_path / "v.npz"
+    assert main(["generate", "--height", "48", "--width", "48", "-o", str(vol)]) == 0
+    out = tmp_path / "out"
+    out.mkdir()
+    names = [f"e_{m}.npz" for m in ("bcc", "hf", "full")]
+    for n in names:
+        (out / n).write_bytes(b"earlier run")
+    return vol, out, names
+
+
 def test_model_all_outputs_replace_as_a_set(tmp_path, monkeypatch, capsys):
     """``--model all`` writes its three outputs as a set: a failure at the second (a full
     disk) leaves the outputs of an earlier run unchanged and no temporary file; the
@@ -145,13 +158,7 @@ def test_model_all_outputs_replace_as_a_set(tmp_path, monkeypatch, capsys):
     import gridflow.io as gio
     from gridflow.bench.cli import main
 
-    vol = tmp_path / "v.npz"
-    assert main(["generate", "--height", "48", "--width", "48", "-o", str(vol)]) == 0
-    out = tmp_path / "out"
-    out.mkdir()
-    names = [f"e_{m}.npz" for m in ("bcc", "hf", "full")]
-    for n in names:
-        (out / n).write_bytes(b"earlier run")
+    vol, out, names = _earlier_model_all_set(tmp_path)
     real = gio.np.savez
     calls = []
 
@@ -201,13 +208,7 @@ def test_a_signal_between_the_renames_of_a_set_waits_for_them(tmp_path, capsys, 
 
     import gridflow.io as gio
 
-    vol = tmp_path / "v.npz"
-    assert main(["generate", "--height", "48", "--width", "48", "-o", str(vol)]) == 0
-    out = tmp_path / "out"
-    out.mkdir()
-    names = [f"e_{m}.npz" for m in ("bcc", "hf", "full")]
-    for n in names:
-        (out / n).write_bytes(b"earlier run")
+    vol, out, names = _earlier_model_all_set(tmp_path)
     real = os.replace
     calls = []
 

@@ -301,11 +301,9 @@ def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
     import shutil
     import tempfile
 
-    from .io import temp_prefix
-
     import imageio.v3 as iio
 
-    from .io import current_umask
+    from .io import current_umask, temp_prefix
 
     folder = Path(folder)
     v = np.asarray(views, dtype=float)

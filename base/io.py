@@ -94,9 +94,7 @@ def check_output(path, *, suffixes, inputs=(), what: str = "output") -> Path:
         if _same_file(path, inp) or path.resolve() == inp.resolve():
             raise OutputError(f"{what} {path}: is an input of this command ({inp}); "
                               "choose another output name")
-    parent = path.parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
+    parent = _existing_ancestor(path.parent)
     if not parent.is_dir():
         raise OutputError(f"{what} {path}: {parent} is not a folder")
     _check_writable(parent, path, what)
@@ -106,11 +104,18 @@ def check_output(path, *, suffixes, inputs=(), what: str = "output") -> Path:
 def _check_writable(folder: Path, path: Path, what: str) -> None:
     """Refuse an output whose folder (or nearest existing ancestor) cannot be written:
     the work would be done and then lost at the rename."""
-    while not folder.exists() and folder != folder.parent:
-        folder = folder.parent
+    folder = _existing_ancestor(folder)
     if not os.access(folder, os.W_OK | os.X_OK):
         why = "a read-only file system" if _read_only_fs(folder) else "not writable"
         raise OutputError(f"{what} {path}: cannot write into {folder} ({why})")
+
+
+def _existing_ancestor(folder: Path) -> Path:
+    """``folder`` or its nearest ancestor that exists (the one an output's folders would
+    be made in)."""
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    return folder
 
 
 def _read_only_fs(folder: Path) -> bool:
@@ -123,9 +128,7 @@ def _read_only_fs(folder: Path) -> bool:
 def name_max(folder) -> int:
     """The longest file name the file system of ``folder`` (or its nearest existing
     ancestor) allows (255 where it does not say)."""
-    folder = Path(folder)
-    while not folder.exists() and folder != folder.parent:
-        folder = folder.parent
+    folder = _existing_ancestor(Path(folder))
     try:
         return int(os.pathconf(folder, "PC_NAME_MAX"))
     except (OSError, ValueError):

@@ -705,7 +705,7 @@ def paper_terms(tables: dict[str, pd.DataFrame]) -> pd.DataFrame:
 
 def paper_terms_markdown(terms: pd.DataFrame, setups: list[str], source: str) -> str:
     """:func:`paper_terms` as a markdown block."""
-    head = ["#", "the paper"] + [f"{s}" for s in setups]
+    head = ["#", "the paper", *setups]
     lines = [f"Made by `gridflow claims {source} --write-terms ...`: each quantitative "
              "statement of the paper's Sec. 4.1, and gridflow's number for it under each "
              "setup with the sub-check's verdict (thresholds: `bench/claims.py`).", "",

@@ -271,12 +271,13 @@ def cmd_claims(a) -> int:
     for path in a.csv:
         df = read_sweep_csv(path)
         table = check_claims(df)
-        label = setup_label(df).replace(" setup", "", 1)
+        setup = setup_label(df)
+        label = setup.replace(" setup", "", 1)
         if label in tables:
             raise UsageError(f"{path}: a second sweep of the {label} setup; --write-terms "
                              "compares one sweep per setup")
         tables[label] = table
-        print(f"{path} ({setup_label(df)}):")
+        print(f"{path} ({setup}):")
         print(table.to_string(index=False, columns=["id", "verdict", "parts", "numbers"],
                               max_colwidth=110))
         if a.write_doc or a.write_csv:

@@ -73,8 +73,8 @@ def regions(data, margin: float) -> dict[str, np.ndarray]:
     ``interior``: the faces' pixels at least ``margin`` from another face or the
     background (the whole window lies on one face); ``edge``: cube pixels closer than that
     to an edge of the cube, split into ``silhouette`` (within ``margin`` of the
-    background) and ``ridge`` (the rest: near the edge between the faces); ``spot_border``: interior pixels in the spotlight's border at
-    the reference frame (between its full-strength radius and its falloff, where the
+    background) and ``ridge`` (the rest: near the edge between the faces);
+    ``spot_border``: interior pixels in the spotlight's border at the reference frame (between its full-strength radius and its falloff, where the
     illumination varies across the surface); ``away``: the rest of the interior.
     """
     from scipy.ndimage import distance_transform_edt
@@ -142,16 +142,21 @@ def cube_table(data, results, margin: float | None = None) -> pd.DataFrame:
 def _angle_stats(angle, shown, mask) -> dict:
     """Angular-error columns over ``mask``: an invalid estimate counts as pointing
     wrongly (it draws no arrow)."""
-    a, s = angle[mask], shown[mask]
-    if not a.size:
+    if not mask.any():
         return {"median_angle_deg": np.nan, "p90_angle_deg": np.nan,
                 "median_shown_deg": np.nan, "shown_right": np.nan}
-    a = np.where(np.isfinite(a), a, 180.0)
-    s = np.where(np.isfinite(s), s, 180.0)
+    a = np.where(np.isfinite(angle[mask]), angle[mask], 180.0)
+    s = np.where(np.isfinite(shown[mask]), shown[mask], 180.0)
     return {"median_angle_deg": float(np.median(a)),
             "p90_angle_deg": float(np.percentile(a, 90)),
             "median_shown_deg": float(np.median(s)),
-            "shown_right": float(np.mean(s < RIGHT_DEG))}
+            "shown_right": _shown_right(shown, mask)}
+
+
+def _shown_right(shown, mask) -> float:
+    """The fraction of ``mask`` whose vector, as Fig. 1 draws it, lies within
+    :data:`RIGHT_DEG` of the truth (an invalid estimate counts as wrong)."""
+    return float(np.mean(shown[mask] < RIGHT_DEG)) if mask.any() else float("nan")
 
 
 def cube_markdown(table: pd.DataFrame, checks: list[dict], source: str) -> str:
@@ -174,7 +179,7 @@ def cube_markdown(table: pd.DataFrame, checks: list[dict], source: str) -> str:
     lines += rows(["face", "region", "model", "n_valid", "median_angle_deg", "p90_angle_deg",
                    "median_shown_deg", "shown_right"])
     lines += ["", "| face | observation | check | verdict |", "|---|---|---|---|"]
-    lines += [f"| {c['face']} | {c.get('observation', '11')} | {c['check']} | "
+    lines += [f"| {c['face']} | {c['observation']} | {c['check']} | "
               f"**{'holds' if c['holds'] else 'does not hold'}** |" for c in checks]
     return "\n".join(lines)
 
@@ -360,9 +365,8 @@ def fig1(data, results, step: int = 12, scale: float = 135.0, margin: float | No
             fracs = []
             for fid, fname in FACE_NAMES.items():
                 inner = masks["interior"] & e.interior & (data.truth["face"] == fid)
-                s_in = np.where(np.isfinite(shown[inner]), shown[inner], 180.0)
-                if s_in.size:
-                    fracs.append(f"{fname} {np.mean(s_in < RIGHT_DEG):.0%}")
+                if inner.any():
+                    fracs.append(f"{fname} {_shown_right(shown, inner):.0%}")
             b.set_title(f"({'fgh'[col]}) motion, {names[model].split(' ')[0]}; right way: "
                         + ", ".join(fracs), fontsize="small")
             if col == 0:

@@ -303,7 +303,7 @@ def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
 
     import imageio.v3 as iio
 
-    from .io import current_umask, temp_prefix
+    from .io import current_umask, signals_deferred, temp_prefix
 
     folder = Path(folder)
     v = np.asarray(views, dtype=float)
@@ -319,8 +319,13 @@ def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
     folder.parent.mkdir(parents=True, exist_ok=True)
     # the whole scene goes to a temporary folder beside the target first, then into
     # place by renames: a failure part-way (a full disk) leaves no partial scene
-    tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(folder), suffix=".tmp", dir=folder.parent))
+    tmp = None
     try:
+        # the folder and the name that removes it come into being together: a signal in
+        # between would leave the folder behind
+        with signals_deferred():
+            tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(folder), suffix=".tmp",
+                                        dir=folder.parent))
         files = []
         for i, nm in enumerate(names):
             img = np.round(np.clip(v[i // n, i % n], 0.0, 1.0) * 255).astype(np.uint8)
@@ -343,7 +348,7 @@ def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
             for nm in files:
                 os.replace(tmp / nm, folder / nm)
     finally:
-        if tmp.exists():
+        if tmp is not None and tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
     written = [folder / nm for nm in files]
     return written

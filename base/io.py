@@ -173,6 +173,8 @@ class atomic_write:
     def __init__(self, path, mode: str = "wb"):
         self.path = Path(path)
         self.mode = mode
+        self.tmp = None             # the temporary file's name, once it exists
+        self.fh = None
 
     def __enter__(self):
         if self.path.is_symlink() or (self.path.exists() and not self.path.is_file()):
@@ -183,15 +185,32 @@ class atomic_write:
         except (FileExistsError, NotADirectoryError):
             raise OutputError(f"{self.path}: its folder {self.path.parent} cannot be made "
                               "(a file of that name is in the way)") from None
-        fd, self.tmp = tempfile.mkstemp(prefix=temp_prefix(self.path), suffix=".tmp",
-                                        dir=self.path.parent)
         try:
-            self.fh = os.fdopen(fd, self.mode)
+            # a signal between the file's creation and the line that keeps its name would
+            # leave it behind (CI saw one in 100 random-time signals): SIGINT and SIGTERM
+            # wait until the name is kept, and then raise inside this try
+            with signals_deferred():
+                fd, tmp = tempfile.mkstemp(prefix=temp_prefix(self.path), suffix=".tmp",
+                                           dir=self.path.parent)
+                self.tmp = tmp
+                try:
+                    self.fh = os.fdopen(fd, self.mode)
+                except BaseException:
+                    os.close(fd)
+                    raise
         except BaseException:
-            os.close(fd)
-            os.unlink(self.tmp)
+            self.discard()
             raise
         return self.fh
+
+    def discard(self) -> None:
+        """Close and remove the temporary file, if there is one; ``path`` is untouched."""
+        try:
+            if self.fh is not None:
+                self.fh.close()
+        finally:
+            if self.tmp is not None:
+                _unlink(self.tmp)
 
     def __exit__(self, exc_type, exc, tb):
         try:
@@ -357,21 +376,25 @@ class atomic_write_set:
         self.writers = [atomic_write(p, mode) for p in paths]
 
     def __enter__(self):
-        self.handles = []
         try:
             for w in self.writers:
-                self.handles.append(w.__enter__())
+                w.__enter__()
         except BaseException:
             self._discard()
             raise
-        return self.handles
+        return [w.fh for w in self.writers]
 
     def _discard(self):
-        for w in self.writers[:len(self.handles)]:
+        # every writer whose temporary file exists, also one a signal hit right after its
+        # __enter__ returned (counting the handles received would miss it)
+        errors = []
+        for w in self.writers:
             try:
-                w.fh.close()
-            finally:
-                _unlink(w.tmp)
+                w.discard()
+            except BaseException as exc:        # close the others all the same
+                errors.append(exc)
+        if errors:
+            raise errors[0]
 
     def __exit__(self, exc_type, exc, tb):
         if exc_type is not None:
@@ -389,7 +412,7 @@ class atomic_write_set:
         try:
             # an interrupt between two renames would leave a set of outputs from two
             # runs: SIGINT and SIGTERM wait until the renames are done
-            with _signals_deferred():
+            with signals_deferred():
                 fcntl.flock(fd, fcntl.LOCK_EX)
                 mode = 0o666 & ~current_umask()
                 for w in self.writers:
@@ -404,7 +427,7 @@ class atomic_write_set:
 
 
 @contextmanager
-def _signals_deferred():
+def signals_deferred():
     """SIGINT and SIGTERM received inside the block are acted on when it ends.
 
     The Python-level handlers are swapped for ones that only note the signal (blocking

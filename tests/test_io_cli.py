@@ -227,3 +227,46 @@ def test_a_signal_between_the_renames_of_a_set_waits_for_them(tmp_path, capsys, 
     assert sorted(p.name for p in out.iterdir()) == sorted(names)
     assert all((out / n).read_bytes()[:2] == b"PK" for n in names), \
         ({n: (out / n).read_bytes()[:12] for n in names}, calls)
+
+
+@pytest.mark.parametrize("target", ["one", "set-first", "set-second", "hci"])
+def test_a_signal_as_the_temporary_is_made_leaves_nothing(tmp_path, monkeypatch, target):
+    """SIGINT arriving the moment ``mkstemp`` (or, for a scene folder, ``mkdtemp``) returns,
+    before the caller has kept the name: the write is interrupted and no temporary is left.
+
+    The random-time signal test met this once in CI (a ``.e_bcc.npz.*.tmp`` beside a
+    whole old set); here the moment is hit every time.  Without holding the signal back
+    until the name is kept, each case leaves its temporary file or folder."""
+    import signal
+    import tempfile
+
+    import gridflow.io as gio
+    from gridflow.hci import write_hci
+
+    made = []
+
+    def then_signal(real):
+        def wrapped(*args, **kwargs):
+            out = real(*args, **kwargs)
+            made.append(out)
+            if target != "set-second" or len(made) == 2:
+                signal.raise_signal(signal.SIGINT)      # handled at the next bytecode
+            return out
+        return wrapped
+
+    kind = "mkdtemp" if target == "hci" else "mkstemp"
+    monkeypatch.setattr(tempfile, kind, then_signal(getattr(tempfile, kind)))
+    (tmp_path / "a.npz").write_bytes(b"old")
+    with pytest.raises(KeyboardInterrupt):
+        if target == "one":
+            with gio.atomic_write(tmp_path / "a.npz") as fh:
+                fh.write(b"new")
+        elif target == "hci":
+            write_hci(tmp_path / "scene", np.zeros((3, 3, 4, 4)))
+        else:
+            with gio.atomic_write_set([tmp_path / "a.npz", tmp_path / "b.npz"]) as fhs:
+                for fh in fhs:
+                    fh.write(b"new")
+    assert made, "the temporary was never made: the test did not reach its moment"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz"]
+    assert (tmp_path / "a.npz").read_bytes() == b"old"

@@ -122,33 +122,41 @@ def read_parameters(path) -> dict:
 
 
 def _geometry(params: dict, path: Path, width: int) -> dict:
-    """Focal length (px), baseline (m), focus distance (m) from a parameters dict."""
-    try:
-        intr, extr = params["intrinsics"], params["extrinsics"]
-        f_mm = float(intr["focal_length_mm"])
-        sensor = float(intr["sensor_size_mm"])
-        res = int(intr["image_resolution_x_px"])
-        b = float(extr["baseline_mm"]) / 1000.0
-        zf = float(extr["focus_distance_m"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise HCIError(f"{path}: missing or bad key {exc} (needs intrinsics focal_length_mm, "
-                       "sensor_size_mm, image_resolution_x_px; extrinsics baseline_mm, "
-                       "focus_distance_m)") from None
-    for sec, key, value in (("intrinsics", "focal_length_mm", f_mm),
-                            ("intrinsics", "sensor_size_mm", sensor),
-                            ("intrinsics", "image_resolution_x_px", res),
-                            ("extrinsics", "baseline_mm", b),
-                            ("extrinsics", "focus_distance_m", zf)):
+    """Focal length (px), baseline (m), focus distance (m) from a parameters dict.
+
+    Each key is read on its own and named when it is missing or not a finite positive
+    number; the resolution must be a whole number equal to the views' width (8.5 is not
+    read as 8, nor 1e999 as an overflow)."""
+    def number(sec: str, key: str) -> float:
+        try:
+            raw = params[sec][key]
+        except KeyError:
+            raise HCIError(f"{path}: [{sec}] {key} missing (needs intrinsics "
+                           "focal_length_mm, sensor_size_mm, image_resolution_x_px; "
+                           "extrinsics baseline_mm, focus_distance_m)") from None
+        try:
+            value = float(raw)
+        except (TypeError, ValueError, OverflowError):
+            value = float("nan")
         if not (np.isfinite(value) and value > 0):
-            raise HCIError(f"{path}: [{sec}] {key} = {params[sec][key]}: expected a finite "
-                           "positive number")
-    if not np.isfinite(f_mm / sensor * res):
-        raise HCIError(f"{path}: [intrinsics] focal_length_mm / sensor_size_mm * "
-                       f"image_resolution_x_px = {f_mm / sensor * res}: not a finite focal "
-                       "length in pixels")
+            raise HCIError(f"{path}: [{sec}] {key} = {raw}: expected a finite positive "
+                           "number")
+        return value
+
+    f_mm = number("intrinsics", "focal_length_mm")
+    sensor = number("intrinsics", "sensor_size_mm")
+    res = number("intrinsics", "image_resolution_x_px")
+    b = number("extrinsics", "baseline_mm") / 1000.0
+    zf = number("extrinsics", "focus_distance_m")
     if res != width:
-        raise HCIError(f"{path}: image_resolution_x_px = {res}, but the views are {width} "
-                       "pixels wide")
+        raise HCIError(f"{path}: [intrinsics] image_resolution_x_px = "
+                       f"{params['intrinsics']['image_resolution_x_px']}, but the views are "
+                       f"{width} pixels wide")
+    if not (np.isfinite(f_mm / sensor * res) and b > 0):
+        raise HCIError(f"{path}: [intrinsics] focal_length_mm / sensor_size_mm * "
+                       f"image_resolution_x_px = {f_mm / sensor * res}, [extrinsics] "
+                       f"baseline_mm / 1000 = {b}: not a finite focal length in pixels and "
+                       "a positive baseline")
     return {"focal_length_px": f_mm / sensor * res, "baseline_m": b, "focus_distance_m": zf}
 
 
@@ -207,8 +215,9 @@ def load_hci(folder, views: int | None = None) -> GridVolume:
         lack = (f"; missing for a {m} x {m} grid: {', '.join(missing[:3])}"
                 + (f" and {len(missing) - 3} more" if len(missing) > 3 else "")
                 if missing else "")
+        last = f" (the last input_Cam{top - 1:03d}.png)" if count else ""
         raise HCIError(f"{folder}: expected input_Cam000.png ... for an odd n x n grid of "
-                       f"views, found {count} views{lack}")
+                       f"views, found {count} views{last}{lack}")
     if n < 3:
         raise HCIError(f"{folder}: a {n} x {n} grid of views; a light field needs at least "
                        "3 x 3 (input_Cam000.png ... input_Cam008.png)")

@@ -85,7 +85,7 @@ def test_bad_scene_folders_are_named(tmp_path):
                                        r"least 3 x 3"):
         load_hci(tmp_path / "d")
     (tmp_path / "c" / "parameters.cfg").write_text("[intrinsics]\nfocal_length_mm = 1\n")
-    with pytest.raises(HCIError, match="parameters.cfg: missing or bad key"):
+    with pytest.raises(HCIError, match=r"parameters.cfg: \[intrinsics\] sensor_size_mm missing"):
         load_hci(tmp_path / "c")
 
 

@@ -350,3 +350,153 @@ def test_output_path_rules(kind, suffix, parent):
         assert target.read_bytes() == b"new" and inp.read_bytes() == b"input"
         assert not [p for p in d.rglob("*.tmp")]
         TRIED["output path: accepted and written"] += 1
+
+
+# --- light-field scenes: parameters.cfg values and damaged folders ------------------------------
+
+_GEOMETRY = {("intrinsics", "focal_length_mm"): 100.0, ("intrinsics", "sensor_size_mm"): 35.0,
+             ("intrinsics", "image_resolution_x_px"): 8, ("extrinsics", "baseline_mm"): 30.0,
+             ("extrinsics", "focus_distance_m"): 8.0}
+# what a person might write in parameters.cfg: ordinary numbers, and the wrong things
+_CFG_TEXT = st.one_of(
+    st.floats(1e-3, 1e3).map(repr), st.integers(-3, 40).map(str),
+    st.sampled_from(["0", "-1", "-30.0", "nan", "inf", "-inf", "1e999", "1e-320", "abc", "",
+                     "8.0", "8.5", "1e308", "0x10", "8 mm", "True"]))
+
+
+def _hci_views():
+    return np.random.default_rng(7).random((3, 3, 6, 8))
+
+
+def _cfg_number(text: str):
+    """What a value of parameters.cfg is, read here independently of the loader: a finite
+    number, or None."""
+    try:
+        v = float(text)
+    except ValueError:
+        return None
+    return v if np.isfinite(v) else None
+
+
+@settings(max_examples=200, **COMMON)
+@given(values=st.dictionaries(st.sampled_from(sorted(_GEOMETRY) + [("meta", "disp_min"),
+                                                                   ("meta", "disp_max")]),
+                              _CFG_TEXT, max_size=3))
+def test_hci_parameters_are_honoured_or_refused(values):
+    """Any values of parameters.cfg's geometry keys and disparity range: the scene loads
+    with exactly the geometry written, or is refused with an error naming parameters.cfg
+    and a key whose value is wrong; never a traceback or a silently changed number (a
+    resolution of 8.5 read as 8)."""
+    from gridflow.hci import HCIError, load_hci, write_hci
+
+    with tempfile.TemporaryDirectory() as d:
+        folder = Path(d) / "scene"
+        params = {"intrinsics": {}, "extrinsics": {}, "meta": {}}
+        merged = {**{k: repr(v) if isinstance(v, float) else str(v)
+                     for k, v in _GEOMETRY.items()}, **values}
+        for (sec, key), text in merged.items():
+            params[sec][key] = text
+        write_hci(folder, _hci_views(), parameters=params)
+        # the oracle: which keys are wrong, stated here from the values alone
+        wrong = set()
+        for (sec, key) in _GEOMETRY:
+            v = _cfg_number(merged[(sec, key)])
+            if v is None or v <= 0:
+                wrong.add(key)
+            elif key == "image_resolution_x_px" and v != 8:
+                wrong.add(key)               # not the views' width (8), or not an integer
+        if "focal_length_mm" not in wrong and "sensor_size_mm" not in wrong:
+            f = _cfg_number(merged[("intrinsics", "focal_length_mm")])
+            s = _cfg_number(merged[("intrinsics", "sensor_size_mm")])
+            if not np.isfinite(f / s * 8):
+                wrong.add("focal_length_mm")
+        # a range is stated by both keys; one alone is an incomplete range
+        lo, hi = (_cfg_number(values[("meta", k)]) if ("meta", k) in values else None
+                  for k in ("disp_min", "disp_max"))
+        ranged = any(k[0] == "meta" for k in values)
+        if ranged and (lo is None or hi is None or lo > hi):
+            wrong |= {"disp_min", "disp_max"}
+        try:
+            data = load_hci(folder)
+        except HCIError as exc:
+            msg = str(exc)
+            assert wrong, f"refused although every value is good: {msg}"
+            assert str(folder / "parameters.cfg") in msg, msg
+            assert any(k in msg for k in wrong), (msg, wrong)
+            TRIED["light field parameters.cfg: refused naming file and key"] += 1
+            return
+        assert not wrong, f"accepted although {sorted(wrong)} are wrong: {merged}"
+        g = data.meta["hci"]
+        num = {k: _cfg_number(t) for (_, k), t in merged.items()}
+        assert g["focal_length_px"] == pytest.approx(
+            num["focal_length_mm"] / num["sensor_size_mm"] * 8, rel=1e-12)
+        assert g["baseline_m"] == pytest.approx(num["baseline_mm"] / 1000, rel=1e-12)
+        assert g["focus_distance_m"] == num["focus_distance_m"]
+        if ranged:
+            assert g["disp_range"] == [lo, hi]
+        TRIED["light field parameters.cfg: accepted and honoured"] += 1
+
+
+def _damage(folder: Path, how: str, view: int) -> str:
+    """Damage one file of a 3 x 3 HCI scene of 6 x 8 views; returns the name an error
+    must mention."""
+    import imageio.v3 as iio
+
+    name = f"input_Cam{view:03d}.png"
+    p = folder / name
+    if how == "missing":
+        p.unlink()
+    elif how == "fifo":
+        p.unlink()
+        os.mkfifo(p)
+    elif how == "device":
+        p.unlink()
+        p.symlink_to("/dev/zero")
+    elif how == "folder":
+        p.unlink()
+        p.mkdir()
+    elif how == "empty":
+        p.write_bytes(b"")
+    elif how == "truncated":
+        p.write_bytes(p.read_bytes()[:40])
+    elif how == "text":
+        p.write_text("not an image")
+    elif how == "16-bit":
+        iio.imwrite(p, np.full((6, 8), 30000, np.uint16))
+    elif how == "size":
+        iio.imwrite(p, np.zeros((6, 9), np.uint8))
+    elif how == "extra view":
+        name = "input_Cam009.png"
+        iio.imwrite(folder / name, np.zeros((6, 8), np.uint8))
+    elif how in ("truth size", "truth corrupt"):
+        from gridflow.hci import write_pfm
+
+        name = "gt_disp_lowres.pfm"
+        if how == "truth size":
+            write_pfm(folder / name, np.zeros((5, 8)))
+        else:
+            (folder / name).write_bytes(b"Pf\n8 6\n-1\n" + b"\0" * 10)
+    return name
+
+
+@settings(max_examples=120, **COMMON)
+@given(how=st.sampled_from(["missing", "fifo", "device", "folder", "empty", "truncated",
+                            "text", "16-bit", "size", "extra view", "truth size",
+                            "truth corrupt"]),
+       view=st.integers(0, 8))
+def test_damaged_hci_scenes_are_refused_naming_the_file(how, view):
+    """One file of a light-field scene damaged in any of the ways the reviews found (a
+    view missing, a FIFO, a link to /dev/zero, a folder, empty, truncated, text, another
+    pixel type or size, a view too many, a truth map of the wrong size or cut short): the
+    scene is refused with an error naming that file, at once (the per-example deadline is
+    the hang check; a FIFO read would block for ever)."""
+    from gridflow.hci import HCIError, load_hci, write_hci
+
+    with tempfile.TemporaryDirectory() as d:
+        folder = Path(d) / "scene"
+        write_hci(folder, _hci_views(), disparity=np.zeros((6, 8)))
+        name = _damage(folder, how, view)
+        with pytest.raises(HCIError) as info:
+            load_hci(folder)
+        assert name in str(info.value), (how, str(info.value))
+        TRIED[f"light field folder: refused ({how})"] += 1

@@ -152,7 +152,7 @@ def cmd_estimate(a) -> int:
     shears = None if a.shears is None else _shear_range(a.shears)
     report = estimate_input(a.input, a.output, models=a.model,
                             settings=_estimator_settings(a), views=a.views, shears=shears,
-                            select=a.select, fill=not a.no_fill, median=a.median,
+                            select=a.select, fill=False if a.no_fill else None, median=a.median,
                             progress=not a.no_progress)
     for line in report.lines:
         print(line)
@@ -438,7 +438,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "('coarse': fine periodic texture, where a wrong shear can "
                         "alias, and smooth surfaces without thin structures, where its "
                         "wider window does better); docs/model.md")
-    p.add_argument("--median", type=int, default=3, metavar="SIZE",
+    p.add_argument("--median", type=int, default=None, metavar="SIZE",
                    help="refocusing: a SIZE x SIZE median of the disparity after the choice "
                         "(default 3; 0: none): a pixel that disagrees with most of its "
                         "neighbours (a wrong shear, a fattened edge) takes theirs")

@@ -136,8 +136,8 @@ def _naming(path):
 
 
 def estimate_input(path, output, *, models=None, settings: dict | None = None, views=None,
-                   shears=None, select: str | None = None, fill: bool = True,
-                   median: int = 3, progress: bool = False) -> EstimateReport:
+                   shears=None, select: str | None = None, fill: bool | None = None,
+                   median: int | None = None, progress: bool = False) -> EstimateReport:
     """Estimate the volume, image folder or light field ``path``; write ``output``.
 
     A light field of one frame on a square grid (an HCI scene, a static camera-grid
@@ -172,14 +172,21 @@ def estimate_input(path, output, *, models=None, settings: dict | None = None, v
         How each pixel's shear is chosen (default ``"lines"``).
     fill, median
         Refocusing: give pixels without an estimate one from their neighbours (a dense
-        map), and the size of the median filter over the disparity (0: none);
-        :func:`gridflow.estimator.lightfield.estimate_refocused`.
+        map; default True), and the size of the median filter over the disparity (default
+        3; 0: none); :func:`gridflow.estimator.lightfield.estimate_refocused`.  ``select``,
+        ``fill`` and ``median`` given for the single pass are refused, not ignored.
     progress : bool
         Print what is about to happen before each long step, and a progress bar over the
         shears, on stderr.
     """
     settings = {k: v for k, v in (settings or {}).items() if v is not None}
+    # refocusing's own settings, as given (refused below where the single pass runs)
+    refocus_given = [flag for flag, given in (("--select", select is not None),
+                                              ("--median", median is not None),
+                                              ("--no-fill", fill is False)) if given]
     select = SELECTS[0] if select is None else select
+    fill = True if fill is None else fill
+    median = 3 if median is None else median
     single_pass = shears == "none"
     # bad settings fail before the volume loads (refocusing uses three of them)
     EstimatorSettings(**(settings if single_pass else
@@ -207,6 +214,12 @@ def estimate_input(path, output, *, models=None, settings: dict | None = None, v
     if shears is None and not refocus and T == 1:
         notes.append(f"not refocused: {path} is a {gr}x{gc} grid (refocusing needs a square "
                      "grid with an odd number of views); the single pass")
+    if not refocus and refocus_given:
+        why = ("--shears none asks for the single pass" if single_pass else
+               f"{path} has {T} frames" if T > 1 else
+               f"{path} is a {gr}x{gc} grid")
+        raise UsageError(f"{', '.join(refocus_given)}: refocusing only; {why}, so the "
+                         "estimator's single pass runs")
     if refocus:
         check_output(output, suffixes=".npz", inputs=[path], what="-o")
         with _naming(path):

@@ -3,12 +3,15 @@ sweep specs, image-folder manifests and output paths give a clear error or docum
 never a crash, hang or silent wrong number; accepted sweep specs run end to end; textured
 volumes give finite estimates.  The counts of inputs tried are printed in the test summary."""
 
+import io
 import json
 import os
 import tempfile
 from collections import Counter
+from contextlib import redirect_stderr, redirect_stdout
 from datetime import timedelta
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -500,3 +503,108 @@ def test_damaged_hci_scenes_are_refused_naming_the_file(how, view):
             load_hci(folder)
         assert name in str(info.value), (how, str(info.value))
         TRIED[f"light field folder: refused ({how})"] += 1
+
+
+# --- estimate's options against the input they apply to -----------------------------------------
+
+# flag -> (its value on the command line, the setting it is recorded as, that value)
+_SINGLE_PASS_FLAGS = {"--temporal-radius": (["2"], "temporal_radius", 2),
+                      "--ref-frame": (["4"], "ref_frame", 4),
+                      "--method": (["reference"], "method", "reference"),
+                      "--no-slant-correction": ([], "slant_correction", False),
+                      "--no-zoom-correction": ([], "zoom_correction", False),
+                      "--combine": (["mean"], "combine", "mean"),
+                      "--motion": (["affine"], "motion", "affine"),
+                      "--model": (["full"], "model", "full")}
+_REFOCUS_FLAGS = {"--select": (["occlusion"], "select", "occlusion"),
+                  "--median": (["5"], "median", 5),
+                  "--no-fill": ([], "fill", False)}
+_COMMON_FLAGS = {"--sigma": (["1.5"], "sigma", 1.5), "--window": (["7"], "window", 7),
+                 "--filters": (["matched3"], "filters", "matched3")}
+_ALL_FLAGS = {**_SINGLE_PASS_FLAGS, **_REFOCUS_FLAGS, **_COMMON_FLAGS}
+# single-pass settings that need several frames: on a light field of one frame they
+# cannot apply (the window's frames, a frame index past the first, the affine model's
+# and the full model's temporal rows)
+_NEEDS_FRAMES = {"--temporal-radius", "--ref-frame", "--motion", "--model"}
+
+
+@pytest.fixture(scope="module")
+def option_inputs(tmp_path_factory):
+    """A volume of 9 frames (3 x 3 views) and a one-frame 5 x 5 light field scene with its
+    disparity range stated (so that refocusing runs no coarse pass)."""
+    from gridflow.hci import write_hci
+    from gridflow.io import save_volume
+
+    d = tmp_path_factory.mktemp("options")
+    save_volume(d / "v.npz", make_sinusoid(height=24, width=24, grid=(3, 3), frames=9))
+    views = np.random.default_rng(3).random((5, 5, 24, 24))
+    params = {"intrinsics": {"focal_length_mm": 100.0, "sensor_size_mm": 35.0,
+                             "image_resolution_x_px": 24},
+              "extrinsics": {"baseline_mm": 30.0, "focus_distance_m": 8.0},
+              "meta": {"disp_min": -1.0, "disp_max": 1.0}}
+    write_hci(d / "scene", views, parameters=params)
+    return {"volume": d / "v.npz", "scene": d / "scene"}
+
+
+@settings(max_examples=80, **COMMON)
+@given(kind=st.sampled_from(["volume", "scene"]),
+       shears=st.sampled_from([None, "none", "-1 1"]),
+       views=st.booleans(),
+       flags=st.lists(st.sampled_from(sorted(_ALL_FLAGS)), max_size=3, unique=True))
+def test_estimate_options_are_honoured_or_refused(option_inputs, kind, shears, views, flags):
+    """Any combination of estimate's options on a volume of several frames or a light
+    field of one frame, refocused or not: each option that applies is honoured (it is in
+    the output's recorded settings with the value given), and one that does not apply to
+    that input is refused with an error naming it, never accepted and ignored."""
+    from gridflow.bench.cli import main
+    from gridflow.io import load_estimate
+
+    with tempfile.TemporaryDirectory() as d:
+        out = Path(d) / "e.npz"
+        # a small window for the small inputs; a --sigma or --window among the flags
+        # comes later and overrides it
+        args = ["estimate", str(option_inputs[kind]), "-o", str(out), "--no-progress",
+                "--sigma", "2", "--window", "9"]
+        if shears is not None:
+            args += ["--shears", *shears.split()]
+        if views:
+            args += ["--views", "3"]
+        for f in flags:
+            args += [f, *_ALL_FLAGS[f][0]]
+        # the oracle: what cannot apply to this input, stated from the options alone
+        refocus = kind == "scene" and shears != "none"
+        misplaced = set()
+        if kind == "volume":
+            misplaced |= {"--views"} if views else set()
+            misplaced |= {"--shears"} if shears == "-1 1" else set()
+        if refocus:
+            misplaced |= set(flags) & set(_SINGLE_PASS_FLAGS)
+        else:
+            misplaced |= set(flags) & set(_REFOCUS_FLAGS)
+            if kind == "scene":
+                misplaced |= set(flags) & _NEEDS_FRAMES
+        out_text, err_text = io.StringIO(), io.StringIO()
+        with redirect_stdout(out_text), redirect_stderr(err_text):
+            rc = main(args)
+        cap = SimpleNamespace(out=out_text.getvalue(), err=err_text.getvalue())
+        if misplaced:
+            assert rc == 2, f"{args}: accepted although {sorted(misplaced)} cannot apply"
+            names = {f for f in misplaced} | {_ALL_FLAGS[f][1] for f in misplaced
+                                             if f in _ALL_FLAGS}
+            assert any(n in cap.err for n in names), (args, cap.err)
+            assert not out.exists()
+            TRIED["estimate options: refused where they do not apply"] += 1
+            return
+        assert rc == 0, f"{args}: refused although every option applies: {cap.err}"
+        _, _, meta = load_estimate(out)
+        got = meta["settings"]
+        for f in flags:
+            _, key, value = _ALL_FLAGS[f]
+            recorded = meta.get("model") if key == "model" else got.get(key)
+            assert recorded == value, f"{args}: {f} given, {key} recorded as {recorded!r}"
+        if views:
+            assert ("3x3 views" in cap.out if not refocus else got["views"] == [3, 3]), \
+                (args, cap.out, got)
+        if shears == "-1 1":
+            assert got["shears"] == [-1, 0, 1]
+        TRIED["estimate options: accepted and honoured"] += 1

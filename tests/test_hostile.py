@@ -852,6 +852,49 @@ def test_a_signal_at_random_times_leaves_the_old_outputs_or_a_whole_new_set(
           SIGNAL_TRIALS)
 
 
+HCI_SIGNAL_TRIALS = 30
+
+
+@pytest.mark.slow
+def test_a_signal_at_random_times_during_generate_hci_leaves_no_partial_scene(tmp_path):
+    """``gridflow generate --hci FOLDER`` (a folder output: 25 views and the truth) sent
+    SIGTERM or SIGINT at a random time from its start to a quarter past its measured end,
+    30 times, each onto a new name: every time the folder is absent or a whole scene that
+    loads, and nothing else is beside it (no temporary folder)."""
+    from gridflow.hci import load_hci
+
+    def command(folder):
+        return [sys.executable, "-m", "gridflow.bench.cli", "generate", "--height", "256",
+                "--width", "256", "--hci", str(folder)]
+
+    t0 = time.monotonic()
+    assert subprocess.run(command(tmp_path / "first"), cwd=ROOT,
+                          capture_output=True).returncode == 0
+    duration = time.monotonic() - t0
+    whole = sorted(p.name for p in (tmp_path / "first").iterdir())
+    rng = np.random.default_rng(2026)
+    seen = {"absent": 0, "whole": 0}
+    for trial in range(HCI_SIGNAL_TRIALS):
+        folder = tmp_path / f"s{trial}"
+        sig = (signal.SIGTERM, signal.SIGINT)[trial % 2]
+        p = subprocess.Popen(command(folder), cwd=ROOT, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.PIPE, text=True)
+        time.sleep(rng.uniform(0, 1.25 * duration))
+        p.send_signal(sig)
+        _, err = p.communicate(timeout=60)
+        beside = sorted(q.name for q in tmp_path.iterdir() if q.name.startswith("."))
+        assert beside == [], (trial, beside, err)
+        if folder.exists():
+            assert sorted(q.name for q in folder.iterdir()) == whole, (trial, err)
+            assert load_hci(folder).volume.shape == (1, 5, 5, 256, 256)
+            seen["whole"] += 1
+        else:
+            assert p.returncode in (130, 143, -sig), (trial, p.returncode, err)
+            seen["absent"] += 1
+    assert seen["absent"] and seen["whole"], seen
+    tried("signal at a random time during generate --hci", HCI_SIGNAL_TRIALS)
+
+
 @pytest.mark.slow
 def test_two_concurrent_model_all_runs_leave_one_whole_set(tmp_path, small_volume):
     """Two ``--model all`` runs started together onto the same name (sigma 2 and 3), 8

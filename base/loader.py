@@ -11,7 +11,9 @@ A folder holds one image per (frame, camera row, camera column) and a ``grid.jso
       "reference_camera": [2, 2],         # optional; must be the centre camera
       "reference_frame": 4,               # optional; default the centre frame
       "principal_point": [127.5, 127.5],  # optional [cx, cy]; default the image centre
-      "truth": {"Z": "truth/Z.npy"}       # optional (H, W) .npy ground-truth maps
+      "truth": {"Z": "truth/Z.npy"},      # optional (H, W) .npy ground-truth maps
+      "frame_interval": 120.0             # optional; seconds between frames (a recording's
+                                          # time stamps)
     }
 
 Images: 8- or 16-bit PNG (grey; RGB is converted to luminance), or float TIFF.  Integer
@@ -43,7 +45,7 @@ class LoaderError(GridflowError):
 
 _REQUIRED = ("focal_length", "camera_spacing", "grid", "frames", "pattern")
 _OPTIONAL = ("reference_camera", "reference_frame", "principal_point", "truth", "units",
-             "source")
+             "source", "frame_interval")
 # a format spec of a pattern field: at most a zero-padded width and a 'd' ({t:02d})
 _FIELD_SPEC = re.compile(r"0?[1-9]?d?")
 # more images than this in one folder is not a camera-grid sequence this loader can hold
@@ -147,6 +149,10 @@ def _read_manifest(folder: Path) -> dict:
         raise LoaderError(f"{path}: 'truth' must map quantity names to .npy file names, "
                           f"got {truth!r}")
     truth = {q: _inside(folder, rel, path, f"truth.{q}") for q, rel in truth.items()}
+    fi = m.get("frame_interval")
+    if fi is not None and not (_is_number(fi) and fi > 0):
+        raise LoaderError(f"{path}: 'frame_interval' must be a positive number of seconds "
+                          f"between frames, got {fi!r}")
     for key, kind in (("units", str), ("source", dict)):
         if m.get(key) is not None and not isinstance(m[key], kind):
             raise LoaderError(f"{path}: '{key}' must be a {kind.__name__}, got {m[key]!r}")
@@ -203,6 +209,65 @@ def load_folder(folder) -> GridVolume:
         images, files that are not regular files, mixed sizes or types, a volume larger
         than this machine's memory, unreadable files or truth maps.
     """
+    m, expected, paths = index_folder(folder)
+    folder = Path(folder)
+    (Sy, Sx), T = m["_grid"], m["_frames"]
+    vol = None
+    first_kind = first_name = None
+    for name, (t, i, j) in expected.items():
+        img, kind = _read_image(paths[name])
+        if vol is None:
+            _check_memory(folder, (T, Sy, Sx) + img.shape)
+            vol = np.empty((T, Sy, Sx) + img.shape)
+            first_kind, first_name = kind, name
+        check_like(folder / name, img, kind, first_name, vol.shape[3:], first_kind)
+        vol[t, i, j] = img
+    H, W = vol.shape[3:]
+    pp = m["_pp"]
+    pp = ((W - 1) / 2.0, (H - 1) / 2.0) if pp is None else (pp[0], pp[1])
+    truth = {q: read_truth(q, p, (H, W)) for q, p in m["_truth"].items()}
+    meta = {"folder": str(folder), "pixel_type": first_kind,
+            "ref_frame": m.get("reference_frame"), "source": m.get("source"),
+            "frame_interval": m.get("frame_interval")}
+    return GridVolume(vol, m["_f"], (m["_ds"][0], m["_ds"][1]), pp, truth, meta)
+
+
+def check_like(path: Path, img: np.ndarray, kind: str, first_name: str, shape: tuple,
+               first_kind: str) -> None:
+    """Refuse an image whose size or pixel type differs from the first one's."""
+    if img.shape != tuple(shape):
+        raise LoaderError(f"{path}: size {img.shape} differs from {first_name} "
+                          f"{tuple(shape)}")
+    if kind != first_kind:
+        raise LoaderError(f"{path}: pixel type {kind} differs from {first_name} "
+                          f"({first_kind})")
+
+
+def read_truth(q: str, p: Path, shape: tuple) -> np.ndarray:
+    """A ``(H, W)`` truth map ``.npy`` named by the manifest, checked."""
+    if not p.is_file():
+        raise LoaderError(f"{p}: truth map '{q}' is missing or not a regular file")
+    try:
+        arr = np.load(p, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise LoaderError(f"{p}: unreadable truth map ({exc})") from None
+    if arr.shape != tuple(shape):
+        raise LoaderError(f"{p}: truth map has shape {arr.shape}, images are {tuple(shape)}")
+    return arr
+
+
+def index_folder(folder) -> tuple[dict, dict, dict]:
+    """A camera-grid folder's checked manifest and its images, none of them read.
+
+    Returns
+    -------
+    manifest : dict
+        ``grid.json`` with ``_grid``, ``_frames``, ``_f``, ``_ds``, ``_pp``, ``_truth``.
+    expected : dict of str to (t, sy, sx)
+        Every image name the manifest names, in frame order.
+    paths : dict of str to Path
+        Each name's path (a regular file inside the folder).
+    """
     folder = Path(folder)
     if not folder.is_dir():
         raise LoaderError(f"{folder}: not a folder")
@@ -246,38 +311,7 @@ def load_folder(folder) -> GridVolume:
     if extra:
         raise LoaderError(f"{folder}: {len(extra)} image(s) match the pattern but lie outside "
                           f"the manifest's grid {Sy}x{Sx} x {T} frames, e.g. {extra[:3]}")
-    vol = None
-    first_kind = first_name = None
-    for name, (t, i, j) in expected.items():
-        img, kind = _read_image(paths[name])
-        if vol is None:
-            _check_memory(folder, (T, Sy, Sx) + img.shape)
-            vol = np.empty((T, Sy, Sx) + img.shape)
-            first_kind, first_name = kind, name
-        if img.shape != vol.shape[3:]:
-            raise LoaderError(f"{folder / name}: size {img.shape} differs from "
-                              f"{first_name} {vol.shape[3:]}")
-        if kind != first_kind:
-            raise LoaderError(f"{folder / name}: pixel type {kind} differs from "
-                              f"{first_name} ({first_kind})")
-        vol[t, i, j] = img
-    H, W = vol.shape[3:]
-    pp = m["_pp"]
-    pp = ((W - 1) / 2.0, (H - 1) / 2.0) if pp is None else (pp[0], pp[1])
-    truth = {}
-    for q, p in m["_truth"].items():
-        if not p.is_file():
-            raise LoaderError(f"{p}: truth map '{q}' is missing or not a regular file")
-        try:
-            arr = np.load(p, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise LoaderError(f"{p}: unreadable truth map ({exc})") from None
-        if arr.shape != (H, W):
-            raise LoaderError(f"{p}: truth map has shape {arr.shape}, images are {(H, W)}")
-        truth[q] = arr
-    meta = {"folder": str(folder), "pixel_type": first_kind,
-            "ref_frame": m.get("reference_frame"), "source": m.get("source")}
-    return GridVolume(vol, m["_f"], (m["_ds"][0], m["_ds"][1]), pp, truth, meta)
+    return m, expected, paths
 
 
 def _check_memory(folder: Path, shape: tuple) -> None:

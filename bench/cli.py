@@ -146,9 +146,31 @@ def cmd_generate(a) -> int:
     return 0
 
 
+def _series_mode(a) -> bool:
+    """``gridflow estimate`` writes a time series: the output is a Zarr store, or the input
+    is a recording store."""
+    from gridflow.recording import is_recording_store
+
+    return (Path(a.output).suffix.lower() == ".zarr"
+            or (Path(a.input).is_dir() and is_recording_store(a.input)))
+
+
 def cmd_estimate(a) -> int:
+    from gridflow.errors import UsageError
+
     from .single import estimate_input
 
+    series_flags = [f for f, given in (("--every", a.every is not None),
+                                       ("--first", a.first is not None),
+                                       ("--last", a.last is not None),
+                                       ("--workers", a.workers is not None),
+                                       ("--memory", a.memory is not None),
+                                       ("--connect", a.connect is not None)) if given]
+    if _series_mode(a):
+        return _cmd_series(a)
+    if series_flags:
+        raise UsageError(f"{', '.join(series_flags)}: for a time series (-o MAPS.zarr from "
+                         "a recording); -o names an .npz")
     shears = None if a.shears is None else _shear_range(a.shears)
     report = estimate_input(a.input, a.output, models=a.model,
                             settings=_estimator_settings(a), views=a.views, shears=shears,
@@ -156,6 +178,75 @@ def cmd_estimate(a) -> int:
                             progress=not a.no_progress)
     for line in report.lines:
         print(line)
+    return 0
+
+
+def _cmd_series(a) -> int:
+    from gridflow.errors import UsageError
+
+    from .series import run_series
+
+    if Path(a.output).suffix.lower() != ".zarr":
+        raise UsageError(f"{a.input} is a recording: its time series is written to a Zarr "
+                         "store, e.g. -o maps.zarr (--every K)")
+    other = [f for f, given in (("--views", a.views is not None),
+                                ("--shears", a.shears is not None),
+                                ("--select", a.select is not None),
+                                ("--median", a.median is not None),
+                                ("--no-fill", a.no_fill)) if given]
+    if other:
+        raise UsageError(f"{', '.join(other)}: light fields only; a recording's time series "
+                         "is estimated frame by frame")
+    models = a.model or ("full",)
+    if len(models) != 1:
+        raise UsageError(f"--model {','.join(models)}: a time series takes one model")
+    report = run_series(a.input, a.output, every=1 if a.every is None else a.every,
+                        model=models[0], settings=_estimator_settings(a), workers=a.workers,
+                        memory=a.memory, connect=a.connect, first=a.first, last=a.last,
+                        progress=not a.no_progress)
+    for line in report.lines:
+        print(line)
+    return 0
+
+
+def cmd_record(a) -> int:
+    from gridflow.generators.recording import RecordingParams
+
+    from .series import make_recording
+
+    over = {fl.name: getattr(a, fl.name) for fl in fields(RecordingParams)
+            if getattr(a, fl.name, None) is not None}
+    over = {k: tuple(v) if isinstance(v, list) else v for k, v in over.items()}
+    for line in make_recording(a.output, RecordingParams(**over),
+                               progress=not a.no_progress):
+        print(line)
+    return 0
+
+
+def cmd_growth(a) -> int:
+    from gridflow.io import check_output
+
+    from .series import draw_growth, growth_table
+
+    if a.csv:
+        check_output(a.csv, suffixes=".csv", inputs=[a.maps], what="--csv")
+    check_output(a.fig_dir, suffixes=None, inputs=[a.maps], what="--fig-dir")
+    table = growth_table(a.maps, a.truth)
+    files = draw_growth(a.maps, table, a.fig_dir, times=a.times)
+    pd_cols = ["frame", "mean", "p10", "p90"] + (["truth", "q_rel"] if a.truth else [])
+    print(table[pd_cols].to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+    if a.truth:
+        print(f"Q_rel(growth) over the steps: median {table['q_rel'].median():.3g}, max "
+              f"{table['q_rel'].max():.3g}; correlation of the mean with the truth "
+              f"{table['mean'].corr(table['truth']):.4f}")
+    if a.csv:
+        from gridflow.io import atomic_write
+
+        with atomic_write(a.csv, "w") as fh:
+            table.to_csv(fh, index=False, float_format="%.6g")
+        files.append(Path(a.csv))
+    for f in files:
+        print(f"wrote {f}")
     return 0
 
 
@@ -447,8 +538,54 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default: filled from their neighbours, marked in 'filled')")
     p.add_argument("--no-progress", action="store_true",
                    help="no messages before long steps and no progress bar")
-    p.add_argument("-o", "--output", required=True, help="output estimate .npz")
+    p.add_argument("-o", "--output", required=True,
+                   help="output estimate .npz, or a Zarr store (MAPS.zarr) for the time "
+                        "series of a recording")
+    r = p.add_argument_group("recordings (-o MAPS.zarr: the estimate at every K-th frame, "
+                             "out of core, on Dask; README: Long recordings)")
+    r.add_argument("--every", type=_positive_int, default=None, metavar="K",
+                   help="frames between time steps (default 1)")
+    r.add_argument("--first", type=int, default=None, metavar="FRAME",
+                   help="frame of the first step (default the first whose window fits)")
+    r.add_argument("--last", type=int, default=None, metavar="FRAME",
+                   help="frame of the last step (default the last whose window fits)")
+    r.add_argument("--workers", type=_positive_int, default=None,
+                   help="steps at once on this machine (default the cores, fewer where "
+                        "--memory says so)")
+    r.add_argument("--memory", type=float, default=None, metavar="GIB",
+                   help="memory budget for the steps at once (default half the machine's)")
+    r.add_argument("--connect", default=None, metavar="ADDRESS",
+                   help="a dask.distributed scheduler (tcp://HOST:PORT) whose workers see "
+                        "the recording and the store at the same paths")
     p.set_defaults(func=cmd_estimate)
+
+    p = sub.add_parser("record", help="render a synthetic growth recording (Zarr): a plane "
+                                      "growing with a day/night rhythm, truth per frame")
+    from gridflow.generators.recording import RecordingParams
+
+    for fl in fields(RecordingParams):
+        default = getattr(RecordingParams(), fl.name)
+        flag = "--" + fl.name.replace("_", "-")
+        if isinstance(default, tuple):
+            p.add_argument(flag, type=type(default[0]), nargs=2, default=None,
+                           metavar=("A", "B"), help=f"default {default[0]} {default[1]}")
+        else:
+            p.add_argument(flag, type=type(default), default=None, help=f"default {default}")
+    p.add_argument("-o", "--output", required=True, help="output recording store (.zarr)")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=cmd_record)
+
+    p = sub.add_parser("growth", help="a map series' growth: maps at chosen frames, the mean "
+                                      "over time with its spread (and against truth)")
+    p.add_argument("maps", help="map series (.zarr) from gridflow estimate RECORDING -o MAPS.zarr")
+    p.add_argument("--truth", metavar="RECORDING", help="a recording with growth truth per "
+                   "frame (gridflow record): Q_rel per step")
+    p.add_argument("--times", type=int, nargs="+", metavar="FRAME",
+                   help="frames whose growth maps to draw (default six spread over the run)")
+    p.add_argument("--fig-dir", default="growth", help="where growth_maps.png and "
+                   "growth_series.png go (default ./growth)")
+    p.add_argument("--csv", help="also write the per-step table")
+    p.set_defaults(func=cmd_growth)
 
     p = sub.add_parser("evaluate", help="print Q_rel / Q_abs (Eq. 22) per quantity")
     p.add_argument("estimate", help="estimate .npz")

@@ -262,7 +262,13 @@ def _intersect_deforming(p: SinusoidParams, G: np.ndarray, x, y, sx: float, sy: 
     ray ``s + Z r``, ``r = (x/f, y/f, 1)``: ``q = s + Z r - X_c - U t = Xm c1 + Ym c2``
     with ``c_i = (I + G t) e_i``, so ``q`` lies in the plane spanned by ``c1, c2`` (normal
     ``N = c1 x c2``), which gives ``Z``, then ``(Xm, Ym)`` from the 2 x 2 Gram system."""
-    A = np.eye(3) + G * t
+    return _intersect_mapped(p, np.eye(3) + G * t, x, y, sx, sy, t)
+
+
+def _intersect_mapped(p: SinusoidParams, A: np.ndarray, x, y, sx: float, sy: float,
+                      t: float):
+    """:func:`_intersect_deforming` with the plane mapped by any 3 x 3 ``A`` at time ``t``
+    (``I + G t`` there; a recording whose growth rate changes with time passes its own)."""
     c1 = A @ np.array([1.0, 0.0, p.Z_X])
     c2 = A @ np.array([0.0, 1.0, p.Z_Y])
     N = np.cross(c1, c2)

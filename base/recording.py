@@ -1,0 +1,528 @@
+"""Recordings: camera-grid sequences too long for memory, read a window of frames at a time,
+and the time series of maps estimated from them (edge: file I/O).
+
+A **recording** is a camera grid imaged at many time instances (frames).  Two forms:
+
+- an image folder whose ``grid.json`` names many frames (:mod:`gridflow.loader`; the
+  optional ``frame_interval`` key gives the seconds between frames);
+- a Zarr store (a folder, conventionally ``*.zarr``) written by :func:`write_recording`::
+
+      rec.zarr/                       group; attrs["gridflow"] = {"kind": "recording", ...}
+        volume   (T, Sy, Sx, H, W)    float32 intensities, one chunk per frame
+        truth/<name>  (T, H, W)       optional ground truth per frame (synthetic data)
+
+  with ``focal_length`` (px), ``camera_spacing`` ``[ds_x, ds_y]``, ``principal_point``
+  ``[cx, cy]`` and ``frame_interval`` (s, or null) in the group's attributes.
+
+:func:`open_recording` reads neither form's images: :meth:`Recording.read` decodes the
+frames one estimate needs, and checks each image against the first (size, pixel type,
+finite values), naming the file or frame that differs.
+
+A **map series** (:class:`MapStore`) is the estimate at every K-th frame: a Zarr group
+readable with ``xarray.open_zarr``::
+
+    maps.zarr/                        attrs["gridflow"] = {"kind": "maps", "key": ..., ...}
+      time  (n,)          frame index of each step     (dimension coordinate)
+      time_s (n,)         seconds from the first frame (where the interval is known)
+      y (H,), x (W,)      pixel row and column
+      <quantity> (time, y, x)  float32, one chunk per step, NaN until written
+      interior (y, x)     bool: pixels free of border effects
+      stamp (time,)       int64: the frames each step read, as they were (names, sizes, times)
+      done (time,)        uint8: 1 once every map of that step is written
+
+Each chunk is written by Zarr as a temporary file renamed into place; ``done`` is set only
+after all of a step's maps, so a step interrupted half-way is done again by the next run,
+and so is a done step whose frames changed since (their ``stamp``: a frame repaired or
+replaced).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import GridflowError
+
+__all__ = ["Recording", "open_recording", "write_recording", "is_recording_store",
+           "MapStore", "RecordingError", "RECORDING_KIND", "MAPS_KIND"]
+
+RECORDING_KIND = "recording"
+MAPS_KIND = "maps"
+FORMAT_VERSION = 1
+
+
+class RecordingError(GridflowError):
+    """A recording or map store that cannot be used; the message names the path."""
+
+
+def _zarr():
+    try:
+        import zarr
+    except ImportError as exc:        # a dependency of gridflow; missing only by hand
+        raise RecordingError("zarr is not installed: pip install zarr") from exc
+    return zarr
+
+
+def _gridflow_attrs(path: Path) -> dict | None:
+    """The ``gridflow`` attributes of the Zarr group at ``path``, or None when ``path`` is
+    not a Zarr v3 group (read from its ``zarr.json`` without opening anything else)."""
+    meta = path / "zarr.json"
+    if not meta.is_file():
+        return None
+    try:
+        doc = json.loads(meta.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    if not isinstance(doc, dict) or doc.get("node_type") != "group":
+        return None
+    g = (doc.get("attributes") or {}).get("gridflow")
+    return g if isinstance(g, dict) else {}
+
+
+def is_recording_store(path) -> bool:
+    """Whether ``path`` is a recording written by :func:`write_recording`."""
+    g = _gridflow_attrs(Path(path))
+    return bool(g) and g.get("kind") == RECORDING_KIND
+
+
+@dataclass
+class Recording:
+    """A camera-grid recording read lazily.
+
+    Attributes
+    ----------
+    path : Path
+    shape : tuple of int
+        ``(T, Sy, Sx, H, W)``.
+    focal_length : float
+        Pixels.
+    camera_spacing : tuple of float
+        ``(ds_x, ds_y)``, world units.
+    principal_point : tuple of float
+        ``(cx, cy)``, pixels.
+    frame_interval : float or None
+        Seconds between frames, where the recording states it.
+    truth_names : tuple of str
+        Quantities with ground truth per frame (:meth:`truth`).
+    """
+
+    path: Path
+    shape: tuple
+    focal_length: float
+    camera_spacing: tuple
+    principal_point: tuple
+    frame_interval: float | None
+    truth_names: tuple = ()
+    _reader: object = field(default=None, repr=False)
+
+    @property
+    def frames(self) -> int:
+        return self.shape[0]
+
+    def read(self, start: int, stop: int) -> np.ndarray:
+        """Frames ``start .. stop - 1`` as float64, shape ``(stop - start, Sy, Sx, H, W)``."""
+        if not 0 <= start < stop <= self.frames:
+            raise RecordingError(f"{self.path}: frames {start}..{stop - 1} requested of "
+                                 f"0..{self.frames - 1}")
+        return self._reader.read(start, stop)
+
+    def truth(self, frame: int) -> dict[str, np.ndarray]:
+        """Ground truth at the reference camera and ``frame``: name to ``(H, W)``."""
+        return self._reader.truth(frame) if self.truth_names else {}
+
+    def identity(self) -> dict:
+        """What identifies the recording for a resume key: its path, kind, shape, geometry
+        and pixel type; not its content (frames may be added or repaired: each step keeps
+        a :meth:`stamp` of the frames it read instead)."""
+        return {"path": str(Path(self.path).resolve()), "shape": list(self.shape),
+                "focal_length": self.focal_length,
+                "camera_spacing": list(self.camera_spacing),
+                "principal_point": list(self.principal_point),
+                "frame_interval": self.frame_interval, **self._reader.identity()}
+
+    def stamp(self, start: int, stop: int) -> int:
+        """A 63-bit stamp of frames ``start .. stop - 1`` as stored: their files' names,
+        sizes and modification times (reading every byte is not an option).  A step whose
+        frames' stamp changed since it was estimated is estimated again."""
+        import hashlib
+
+        h = hashlib.sha1()
+        for p in self._reader.files(start, stop):
+            try:
+                st = p.stat()
+                h.update(f"{p.name}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+            except FileNotFoundError:
+                h.update(f"{p.name}\0missing\n".encode())
+        return int.from_bytes(h.digest()[:8], "little") >> 1
+
+
+def open_recording(path) -> Recording:
+    """Open a recording (a Zarr recording store or a camera-grid image folder) without
+    reading its images.
+
+    Raises
+    ------
+    RecordingError
+        ``path`` is neither, or its metadata is malformed (the message names the file).
+    """
+    path = Path(path)
+    if not path.is_dir():
+        raise RecordingError(f"{path}: not a folder (a recording is a Zarr store or a "
+                             "camera-grid folder with grid.json)")
+    g = _gridflow_attrs(path)
+    if g is not None:
+        if g.get("kind") != RECORDING_KIND:
+            raise RecordingError(f"{path}: a Zarr store that is not a gridflow recording "
+                                 f"(attribute gridflow.kind = {g.get('kind')!r}, expected "
+                                 f"{RECORDING_KIND!r})")
+        return _ZarrReader.open(path)
+    if (path / "grid.json").exists():
+        return _FolderReader.open(path)
+    raise RecordingError(f"{path}: neither a gridflow recording store (zarr.json) nor a "
+                         "camera-grid folder (grid.json)")
+
+
+class _ZarrReader:
+    def __init__(self, path: Path, group):
+        self.path, self.group = path, group
+        self.volume = group["volume"]
+
+    @classmethod
+    def open(cls, path: Path) -> Recording:
+        zarr = _zarr()
+        try:
+            group = zarr.open_group(str(path), mode="r")
+            vol = group["volume"]
+        except Exception as exc:        # zarr raises many kinds for a damaged store
+            raise RecordingError(f"{path}: unreadable recording store ({type(exc).__name__}: "
+                                 f"{exc})") from None
+        a = dict(group.attrs)
+        if vol.ndim != 5 or min(vol.shape) < 1:
+            raise RecordingError(f"{path}/volume: shape {vol.shape}, expected (T, Sy, Sx, H, W)")
+        if vol.dtype.kind != "f":
+            raise RecordingError(f"{path}/volume: pixel type {vol.dtype}, expected float")
+
+        def numbers(key, n, positive=True):
+            v = a.get(key)
+            ok = (isinstance(v, list) and len(v) == n
+                  and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                          and np.isfinite(x) for x in v))
+            if not ok or (positive and not all(x > 0 for x in v)):
+                raise RecordingError(f"{path}/zarr.json: attribute {key!r} must be {n} finite "
+                                     f"{'positive ' if positive else ''}numbers, got {v!r}")
+            return tuple(float(x) for x in v)
+
+        f, = _numbers_scalar(a, "focal_length", path)
+        ds = numbers("camera_spacing", 2)
+        T, Sy, Sx, H, W = vol.shape
+        pp = (numbers("principal_point", 2, positive=False) if a.get("principal_point")
+              is not None else ((W - 1) / 2.0, (H - 1) / 2.0))
+        fi = a.get("frame_interval")
+        if fi is not None:
+            fi, = _numbers_scalar(a, "frame_interval", path)
+        names = ()
+        if "truth" in group:
+            names = tuple(sorted(k for k, _ in group["truth"].arrays()))
+            for n in names:
+                if group["truth"][n].shape != (T, H, W):
+                    raise RecordingError(f"{path}/truth/{n}: shape {group['truth'][n].shape}, "
+                                         f"expected {(T, H, W)}")
+        return Recording(path, vol.shape, f, ds, pp, fi, names, cls(path, group))
+
+    def read(self, start: int, stop: int) -> np.ndarray:
+        try:
+            out = np.asarray(self.volume[start:stop], dtype=np.float64)
+        except Exception as exc:
+            raise RecordingError(f"{self.path}/volume: frames {start}..{stop - 1} unreadable "
+                                 f"({type(exc).__name__}: {exc})") from None
+        bad = ~np.isfinite(out)
+        if bad.any():
+            k = int(np.argwhere(bad)[0][0]) + start
+            raise RecordingError(f"{self.path}/volume: frame {k} holds non-finite intensities "
+                                 "(NaN or inf: a frame never written, or damaged)")
+        return out
+
+    def truth(self, frame: int) -> dict:
+        g = self.group["truth"]
+        return {n: np.asarray(g[n][frame], dtype=np.float64) for n, _ in g.arrays()}
+
+    def identity(self) -> dict:
+        return {"kind": "zarr", "dtype": str(self.volume.dtype)}
+
+    def files(self, start: int, stop: int) -> list[Path]:
+        # the chunk files of those frames (one chunk per frame as written; any layout:
+        # every file under the frames' chunk-key folders)
+        out = []
+        for k in range(start, stop):
+            d = self.path / "volume" / "c" / str(k)
+            out += sorted(p for p in d.rglob("*") if p.is_file()) if d.is_dir() else [d]
+        return out
+
+
+def _numbers_scalar(a: dict, key: str, path: Path) -> tuple:
+    v = a.get(key)
+    if not (isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+            and v > 0):
+        raise RecordingError(f"{path}/zarr.json: attribute {key!r} must be a finite positive "
+                             f"number, got {v!r}")
+    return (float(v),)
+
+
+class _FolderReader:
+    def __init__(self, path, m, by_frame, first, shape, kind):
+        self.path, self.m, self.by_frame = path, m, by_frame
+        self.first, self.image_shape, self.kind = first, shape, kind
+
+    @classmethod
+    def open(cls, path: Path) -> Recording:
+        from .loader import LoaderError, _read_image, index_folder
+
+        try:
+            m, expected, paths = index_folder(path)
+            (Sy, Sx), T = m["_grid"], m["_frames"]
+            by_frame = [[None] * (Sy * Sx) for _ in range(T)]
+            for name, (t, i, j) in expected.items():
+                by_frame[t][i * Sx + j] = paths[name]
+            first = by_frame[0][0]
+            img, kind = _read_image(first)       # the size and type every image must have
+        except LoaderError as exc:
+            raise RecordingError(str(exc)) from None
+        H, W = img.shape
+        pp = m["_pp"]
+        pp = ((W - 1) / 2.0, (H - 1) / 2.0) if pp is None else (pp[0], pp[1])
+        if m["_truth"]:
+            raise RecordingError(f"{path / 'grid.json'}: 'truth' maps of one frame do not "
+                                 "describe a recording; leave the key out")
+        reader = cls(path, m, by_frame, first, (H, W), kind)
+        return Recording(path, (T, Sy, Sx, H, W), m["_f"], (m["_ds"][0], m["_ds"][1]), pp,
+                         m.get("frame_interval"), (), reader)
+
+    def read(self, start: int, stop: int) -> np.ndarray:
+        from .loader import LoaderError, _read_image, check_like
+
+        Sy, Sx = self.m["_grid"]
+        out = np.empty((stop - start, Sy, Sx) + self.image_shape)
+        try:
+            for t in range(start, stop):
+                for k, p in enumerate(self.by_frame[t]):
+                    if not p.is_file():
+                        raise LoaderError(f"{p}: frame {t}, camera ({k // Sx}, {k % Sx}) is "
+                                          "missing or not a regular file")
+                    img, kind = _read_image(p)
+                    check_like(p, img, kind, self.first.name, self.image_shape, self.kind)
+                    out[t - start, k // Sx, k % Sx] = img
+        except LoaderError as exc:
+            raise RecordingError(str(exc)) from None
+        return out
+
+    def identity(self) -> dict:
+        return {"kind": "folder", "pattern": self.m["pattern"], "pixel_type": self.kind}
+
+    def files(self, start: int, stop: int) -> list[Path]:
+        return [p for t in range(start, stop) for p in self.by_frame[t]]
+
+
+def write_recording(path, frames, *, shape: tuple, focal_length: float,
+                    camera_spacing: tuple, principal_point: tuple | None = None,
+                    frame_interval: float | None = None, truth_names: tuple = (),
+                    source: dict | None = None, progress=None) -> Path:
+    """Write a recording store from an iterable of frames.
+
+    Parameters
+    ----------
+    path : path
+        The store (a new folder; refused if it exists).  It is written under a temporary
+        name beside it and renamed when complete, or removed on failure.
+    frames : iterable of (ndarray, dict)
+        Per frame the views ``(Sy, Sx, H, W)`` and the truth maps ``{name: (H, W)}``.
+    shape : tuple
+        ``(T, Sy, Sx, H, W)``.
+    focal_length, camera_spacing, principal_point, frame_interval
+        As :class:`Recording`.
+    truth_names : tuple of str
+        The truth maps each frame carries.
+    source : dict, optional
+        How the recording was made (stored in the attributes).
+    progress : callable, optional
+        Called with the number of frames written after each.
+    """
+    import shutil
+    import tempfile
+
+    from .io import OutputError, signals_deferred, temp_prefix
+
+    zarr = _zarr()
+    path = Path(path)
+    if path.exists() or path.is_symlink():
+        raise OutputError(f"{path}: exists; a recording is written to a new name")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    T, Sy, Sx, H, W = shape
+    tmp = None
+    try:
+        with signals_deferred():
+            tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(path), suffix=".tmp",
+                                        dir=path.parent))
+        group = zarr.open_group(str(tmp), mode="w")
+        group.attrs.update({"gridflow": {"kind": RECORDING_KIND, "version": FORMAT_VERSION,
+                                         "source": source or {}},
+                            "focal_length": float(focal_length),
+                            "camera_spacing": [float(v) for v in camera_spacing],
+                            "principal_point": (None if principal_point is None else
+                                                [float(v) for v in principal_point]),
+                            "frame_interval": (None if frame_interval is None else
+                                               float(frame_interval))})
+        vol = group.create_array("volume", shape=shape, chunks=(1, Sy, Sx, H, W),
+                                 dtype="float32", fill_value=np.nan,
+                                 dimension_names=("frame", "sy", "sx", "y", "x"))
+        tg = group.create_group("truth") if truth_names else None
+        tarr = {n: tg.create_array(n, shape=(T, H, W), chunks=(1, H, W), dtype="float32",
+                                   fill_value=np.nan, dimension_names=("frame", "y", "x"))
+                for n in truth_names}
+        k = -1
+        for k, (views, truth) in enumerate(frames):
+            if k >= T:
+                raise ValueError(f"more than the {T} frames stated")
+            vol[k] = np.asarray(views, dtype=np.float32)
+            for n in truth_names:
+                tarr[n][k] = np.asarray(truth[n], dtype=np.float32)
+            if progress is not None:
+                progress(k + 1)
+        if k + 1 != T:
+            raise ValueError(f"{k + 1} frames given, {T} stated")
+        os.rename(tmp, path)
+        tmp = None
+    finally:
+        if tmp is not None and tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return path
+
+
+class MapStore:
+    """The Zarr store of a map series (see the module docstring).
+
+    Create with :meth:`create` (or reopen one made with the same key) and write steps with
+    :meth:`write_step`; any process can write any step (tasks on a cluster write their own
+    steps), as each step is its own chunk of every array.
+    """
+
+    def __init__(self, path: Path, group):
+        self.path, self.group = path, group
+
+    @property
+    def attrs(self) -> dict:
+        return dict(self.group.attrs)
+
+    @property
+    def key(self) -> str:
+        return self.attrs["gridflow"]["key"]
+
+    @property
+    def quantities(self) -> list[str]:
+        return list(self.attrs["gridflow"]["quantities"])
+
+    @classmethod
+    def create(cls, path, *, key: str, frames: list[int], shape: tuple, quantities: list,
+               frame_interval: float | None, attrs: dict, inputs=()) -> "MapStore":
+        """Make the store, or reopen it when it holds a run with the same ``key``.
+
+        Raises
+        ------
+        OutputError
+            ``path`` is an input (or lies inside one), is something other than a gridflow
+            map store, or holds another run's results (another key).
+        """
+        from .io import OutputError
+
+        zarr = _zarr()
+        path = Path(path)
+        for inp in inputs:
+            inp = Path(inp).resolve()
+            if path.resolve() == inp or path.resolve().is_relative_to(inp):
+                raise OutputError(f"{path}: is the input {inp} or lies inside it; no output "
+                                  "replaces an input")
+        if path.exists() or path.is_symlink():
+            g = _gridflow_attrs(path) if path.is_dir() and not path.is_symlink() else None
+            if g is None or g.get("kind") != MAPS_KIND:
+                what = ("a gridflow " + str(g.get("kind")) if g and g.get("kind") else
+                        "a Zarr store that is not gridflow's" if g is not None else
+                        "not a gridflow map store")
+                raise OutputError(f"{path}: exists and is {what}; refusing to write a map "
+                                  "series into it")
+            if g.get("key") != key:
+                raise OutputError(
+                    f"{path}: holds another run's results (input, settings, steps or code "
+                    f"differ: key {g.get('key')} here, {key} now); remove it or choose "
+                    "another name")
+            return cls(path, zarr.open_group(str(path), mode="r+"))
+        H, W = shape
+        n = len(frames)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        group = zarr.open_group(str(path), mode="w-")
+        # the identity last: a store whose creation was cut short has no key and is
+        # refused above as "not a gridflow map store" rather than taken up
+        t = group.create_array("time", shape=(n,), chunks=(n,), dtype="int64",
+                               dimension_names=("time",))
+        t[:] = np.asarray(frames, dtype=np.int64)
+        t.attrs.update({"long_name": "frame index"})
+        coords = []
+        if frame_interval is not None:
+            ts = group.create_array("time_s", shape=(n,), chunks=(n,), dtype="float64",
+                                    dimension_names=("time",))
+            ts[:] = np.asarray(frames, dtype=np.float64) * float(frame_interval)
+            ts.attrs.update({"units": "s", "long_name": "time since the first frame"})
+            coords.append("time_s")
+        for name, size in (("y", H), ("x", W)):
+            a = group.create_array(name, shape=(size,), chunks=(size,), dtype="int64",
+                                   dimension_names=(name,))
+            a[:] = np.arange(size)
+        for q in quantities:
+            a = group.create_array(q, shape=(n, H, W), chunks=(1, H, W), dtype="float32",
+                                   fill_value=np.nan, dimension_names=("time", "y", "x"))
+            if coords:
+                a.attrs.update({"coordinates": " ".join(coords)})
+        group.create_array("interior", shape=(H, W), chunks=(H, W), dtype="bool",
+                           fill_value=False, dimension_names=("y", "x"))
+        group.create_array("stamp", shape=(n,), chunks=(1,), dtype="int64", fill_value=0,
+                           dimension_names=("time",))
+        group.create_array("done", shape=(n,), chunks=(1,), dtype="uint8", fill_value=0,
+                           dimension_names=("time",))
+        group.attrs.update({**attrs, "gridflow": {"kind": MAPS_KIND, "version": FORMAT_VERSION,
+                                                  "key": key, "quantities": list(quantities),
+                                                  **attrs.get("gridflow", {})}})
+        return cls(path, group)
+
+    @classmethod
+    def open(cls, path) -> "MapStore":
+        """Open an existing map store for reading."""
+        zarr = _zarr()
+        path = Path(path)
+        g = _gridflow_attrs(path) if path.is_dir() else None
+        if g is None or g.get("kind") != MAPS_KIND:
+            raise RecordingError(f"{path}: not a gridflow map series (expected a Zarr store "
+                                 "written by gridflow estimate RECORDING -o MAPS.zarr)")
+        return cls(path, zarr.open_group(str(path), mode="r"))
+
+    def done(self) -> np.ndarray:
+        """Bool per step: written completely."""
+        return np.asarray(self.group["done"][:], dtype=bool)
+
+    def frames(self) -> np.ndarray:
+        return np.asarray(self.group["time"][:])
+
+    def stamps(self) -> np.ndarray:
+        """Per step the stamp of the frames it read (:meth:`Recording.stamp`)."""
+        return np.asarray(self.group["stamp"][:])
+
+    def write_step(self, i: int, maps: dict, interior: np.ndarray, stamp: int = 0) -> None:
+        """Write step ``i``'s maps and the stamp of the frames it read, then mark it done."""
+        for q in self.quantities:
+            self.group[q][i] = np.asarray(maps[q], dtype=np.float32)
+        # the same for every step (it depends on the image size and settings alone);
+        # written by each, so that any step may come first
+        self.group["interior"][:] = np.asarray(interior, dtype=bool)
+        self.group["stamp"][i] = stamp
+        self.group["done"][i] = 1

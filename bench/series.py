@@ -1,0 +1,546 @@
+"""Long recordings: the estimate at every K-th frame of a recording, written as a map series
+(:class:`gridflow.recording.MapStore`), out of core and in parallel on Dask.
+
+Each time step is one task: it reads the frames its temporal window needs
+(:meth:`gridflow.recording.Recording.read`), estimates, and writes its maps into the store
+itself, so nothing larger than a few numbers goes back to the client.  Locally the tasks
+run on Dask's threaded scheduler, as many at once as the memory budget allows (the
+estimator's numba kernels share the cores among them); ``connect`` sends them to a
+``dask.distributed`` scheduler instead, whose workers must see the recording and the store
+at the same paths (a shared disk).
+
+A rerun with the same input, settings and code skips the steps already done (the store's
+``done`` flags), so an interrupted run resumes; a store made by another run is refused.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from gridflow.errors import UsageError
+from gridflow.recording import MapStore, Recording, RecordingError, open_recording
+
+__all__ = ["SeriesJob", "plan_series", "run_series", "SeriesReport", "step_memory",
+           "DEFAULT_MOTION", "DEFAULT_MODEL"]
+
+DEFAULT_MODEL = "full"
+# a recording is made for growth: the affine motion model (growth and rotation maps)
+DEFAULT_MOTION = "affine"
+# bytes the estimator holds per byte of its input window, measured (bench/README.md,
+# *Long recordings*): the window as float64 plus the band's signals and tensor
+_MEMORY_FACTOR = 3.0
+
+
+@dataclass(frozen=True)
+class SeriesJob:
+    """Everything one task needs (small and picklable: paths and settings, no data).
+
+    Attributes
+    ----------
+    recording, store : str
+        Paths (the same on every worker).
+    frames : tuple of int
+        The frame of each step.
+    reach : int
+        Frames either side of a step's frame that its estimate reads.
+    model : str
+    settings : dict
+        Estimator settings (``ref_frame`` is set per step).
+    threads : int
+        numba threads per task.
+    """
+
+    recording: str
+    store: str
+    frames: tuple
+    reach: int
+    model: str
+    settings: dict = field(default_factory=dict)
+    threads: int = 1
+
+
+def _reach(settings: dict) -> int:
+    """Frames either side of the reference frame an estimate reads: the temporal window's
+    radius (default 2) plus the temporal filter's."""
+    from gridflow.estimator.filters import get_filter_pair
+
+    radius = settings.get("temporal_radius")
+    radius = 2 if radius is None else int(radius)
+    taps = get_filter_pair(settings.get("filters_t") or settings.get("filters")
+                           or "matched5").taps
+    return radius + taps // 2
+
+
+def step_memory(rec: Recording, reach: int) -> int:
+    """Bytes one step needs: its window of frames as float64 times the estimator's factor."""
+    T, Sy, Sx, H, W = rec.shape
+    return int((2 * reach + 1) * Sy * Sx * H * W * 8 * _MEMORY_FACTOR)
+
+
+def _quantities(model: str, settings: dict, grid) -> list[str]:
+    from gridflow.estimator.models import get_model
+
+    dims = 1 if grid[0] == 1 else 2
+    m = get_model(model, dims, motion=settings.get("motion") or "translation")
+    return list(m.outputs) + ["model_error"]
+
+
+def _code_key() -> str:
+    from .sweep import _code_fingerprint, _versions
+
+    return json.dumps({"code": _code_fingerprint(), "versions": _versions()}, sort_keys=True)
+
+
+def plan_series(recording, output, *, every: int = 1, model: str | None = None,
+                settings: dict | None = None, first: int | None = None,
+                last: int | None = None, check=None):
+    """Open the recording, choose the steps, make (or reopen) the store.
+
+    ``check(rec, reach)``, if given, runs before the store is made (a refusal there
+    leaves nothing written).
+
+    Returns
+    -------
+    rec : Recording
+    store : MapStore
+    job : SeriesJob
+    """
+    from gridflow.estimator import EstimatorSettings
+    from gridflow.io import check_output
+
+    settings = {k: v for k, v in (settings or {}).items() if v is not None}
+    settings.setdefault("motion", DEFAULT_MOTION)
+    model = model or DEFAULT_MODEL
+    if not (isinstance(every, int) and every >= 1):
+        raise UsageError(f"--every must be a positive number of frames, got {every!r}")
+    if "ref_frame" in settings:
+        raise UsageError("--ref-frame: a time series estimates at every K-th frame "
+                         "(--every); there is no one reference frame")
+    EstimatorSettings(**settings)              # bad settings fail before anything opens
+    out = Path(output)
+    if out.suffix.lower() != ".zarr":
+        raise UsageError(f"-o {output}: a recording's time series is written to a Zarr "
+                         "store, e.g. -o maps.zarr")
+    # the output folder's name and writability before the recording is opened
+    check_output(out, suffixes=None, what="-o")
+    rec = open_recording(recording)
+    reach = _reach(settings)
+    T = rec.frames
+    lo, hi = reach, T - 1 - reach
+    if hi < lo:
+        raise UsageError(f"{recording}: {T} frames; a step needs {2 * reach + 1} (its "
+                         f"temporal window {settings.get('temporal_radius', 2)} and the "
+                         "filters either side)")
+    first = lo if first is None else int(first)
+    last = hi if last is None else int(last)
+    if not lo <= first <= last <= hi:
+        raise UsageError(f"steps from frame {first} to {last}: expected {lo} <= first <= "
+                         f"last <= {hi} (the frames whose window lies in the recording)")
+    frames = tuple(range(first, last + 1, every))
+    quantities = _quantities(model, settings, rec.shape[1:3])
+    blob = json.dumps({"input": rec.identity(), "settings": settings, "model": model,
+                       "frames": frames, "code": _code_key()}, sort_keys=True)
+    key = hashlib.sha1(blob.encode()).hexdigest()[:16]
+    attrs = {"gridflow": {"input": str(Path(recording).resolve()), "model": model,
+                          "settings": settings, "every": every, "reach": reach,
+                          "focal_length": rec.focal_length,
+                          "camera_spacing": list(rec.camera_spacing),
+                          "frame_interval": rec.frame_interval}}
+    if check is not None:
+        check(rec, reach)
+    store = MapStore.create(out, key=key, frames=list(frames), shape=rec.shape[3:],
+                            quantities=quantities, frame_interval=rec.frame_interval,
+                            attrs=attrs, inputs=[recording])
+    job = SeriesJob(str(Path(recording).resolve()), str(out.resolve()), frames, reach, model,
+                    settings)
+    return rec, store, job
+
+
+@lru_cache(maxsize=4)
+def _opened(recording: str, store: str):
+    """The recording and store, opened once per process (a worker runs many steps)."""
+    import zarr
+
+    return open_recording(recording), MapStore(Path(store), zarr.open_group(store, mode="r+"))
+
+
+def run_step(job: SeriesJob, i: int) -> dict:
+    """Estimate step ``i`` of ``job`` and write it into the store; returns its timing.
+
+    Runs on a worker: reads only its window of frames.
+    """
+    from gridflow.estimator import estimate_models
+
+    try:
+        import numba
+
+        numba.set_num_threads(max(1, min(job.threads, numba.config.NUMBA_NUM_THREADS)))
+    except ImportError:
+        pass
+    rec, store = _opened(job.recording, job.store)
+    k = job.frames[i]
+    t0 = time.perf_counter()
+    # the stamp before the read: a frame replaced during the read makes the next run
+    # redo this step rather than keep it
+    stamp = rec.stamp(k - job.reach, k + job.reach + 1)
+    window = rec.read(k - job.reach, k + job.reach + 1)
+    t1 = time.perf_counter()
+    try:
+        ests = estimate_models(window, rec.focal_length, rec.camera_spacing,
+                               models=(job.model,), principal_point=rec.principal_point,
+                               **{**job.settings, "ref_frame": job.reach})
+    except Exception as exc:
+        from gridflow.estimator import InputError
+
+        if isinstance(exc, InputError):
+            raise RecordingError(f"{job.recording}: frames {k - job.reach}..{k + job.reach} "
+                                 f"(step at frame {k}): {exc}") from None
+        raise
+    est = ests[job.model]
+    t2 = time.perf_counter()
+    store.write_step(i, {q: est[q] for q in store.quantities}, est.interior, stamp)
+    t3 = time.perf_counter()
+    return {"step": i, "frame": k, "read_s": t1 - t0, "estimate_s": t2 - t1,
+            "write_s": t3 - t2}
+
+
+@dataclass
+class SeriesReport:
+    """What :func:`run_series` did."""
+
+    steps: int
+    skipped: int
+    done: int
+    seconds: float
+    concurrent: int
+    where: str
+    lines: list = field(default_factory=list)
+
+
+def _local_concurrency(rec: Recording, reach: int, workers: int | None,
+                       memory: float | None) -> tuple[int, int, int]:
+    """(steps at once, numba threads each, budget bytes) for the local scheduler."""
+    from gridflow.volume import physical_memory
+
+    cores = os.cpu_count() or 1
+    have = physical_memory()
+    budget = int(memory * 2**30) if memory is not None else \
+        int(0.5 * have) if have else 4 * 2**30
+    need = step_memory(rec, reach)
+    if need > budget:
+        raise UsageError(f"one step needs about {need / 2**30:.1f} GiB ({2 * reach + 1} frames "
+                         f"of {rec.shape[1]}x{rec.shape[2]} views of {rec.shape[4]}x"
+                         f"{rec.shape[3]} px), more than the memory budget "
+                         f"{budget / 2**30:.1f} GiB (--memory GIB)")
+    n = workers if workers is not None else cores
+    if not (isinstance(n, int) and n >= 1):
+        raise UsageError(f"--workers must be a positive number, got {workers!r}")
+    n = max(1, min(n, budget // need))
+    return n, max(1, cores // n), budget
+
+
+def run_series(recording, output, *, every: int = 1, model: str | None = None,
+               settings: dict | None = None, workers: int | None = None,
+               memory: float | None = None, connect: str | None = None,
+               first: int | None = None, last: int | None = None,
+               progress: bool = False, limit: int | None = None) -> SeriesReport:
+    """Estimate a recording at every ``every``-th frame into the Zarr store ``output``.
+
+    Parameters
+    ----------
+    recording : path
+        A recording store or camera-grid folder (:func:`gridflow.recording.open_recording`).
+    output : path
+        ``*.zarr``; made, or resumed when it holds this run's finished steps.
+    every : int
+        Frames between steps.
+    model : str
+        Brightness model (default ``full``).
+    settings : dict
+        Estimator settings; ``motion`` defaults to ``affine`` (growth maps).
+    workers : int, optional
+        Steps at once on this machine (default: the cores, fewer where the memory budget
+        says so).
+    memory : float, optional
+        Memory budget in GiB for the steps running at once (default half the machine's).
+    connect : str, optional
+        A ``dask.distributed`` scheduler address; the workers need the same paths.
+    first, last : int, optional
+        Frames of the first and last step (default the whole recording).
+    progress : bool
+        Messages and a progress bar (steps done, rate, time left) on stderr.
+    limit : int, optional
+        Run at most this many of the remaining steps (benchmarks, tests).
+    """
+    import dask
+
+    def say(text):
+        if progress:
+            print(text, file=sys.stderr, flush=True)
+
+    say(f"opening {recording} ...")
+    local = {}
+
+    def check(rec, reach):
+        if not connect:          # the memory budget, before anything is written
+            local["plan"] = _local_concurrency(rec, reach, workers, memory)
+
+    rec, store, job = plan_series(recording, output, every=every, model=model,
+                                  settings=settings, first=first, last=last, check=check)
+    done = store.done()
+    # a done step whose frames changed since (repaired, replaced) is done again
+    stamps = store.stamps()
+    changed = [i for i in np.flatnonzero(done)
+               if rec.stamp(job.frames[i] - job.reach, job.frames[i] + job.reach + 1)
+               != stamps[i]]
+    todo = [i for i in range(len(job.frames)) if not done[i] or i in set(changed)]
+    skipped = len(job.frames) - len(todo)
+    if limit is not None:
+        todo = todo[:limit]
+    T, Sy, Sx, H, W = rec.shape
+    if skipped:
+        say(f"{output}: {skipped} of {len(job.frames)} steps already done, resuming")
+    if changed:
+        say(f"{output}: {len(changed)} done step(s) read frames that changed since; "
+            "estimating them again")
+    if connect:
+        from .executors import make_client
+
+        client = make_client(scheduler=connect)
+        where = f"the dask cluster at {connect}"
+        n = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
+    else:
+        n, threads, budget = local["plan"]
+        job = SeriesJob(**{**job.__dict__, "threads": threads})
+        where = (f"this machine: {n} step(s) at once, {threads} numba thread(s) each, "
+                 f"memory budget {budget / 2**30:.1f} GiB")
+    say(f"{len(todo)} steps (every {every} frames, {2 * job.reach + 1} frames of {Sy}x{Sx} "
+        f"views of {W}x{H} px each) on {where} ...")
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(job.frames), initial=skipped, unit="step", file=sys.stderr,
+                   dynamic_ncols=True)
+    t0 = time.perf_counter()
+    finished = 0
+    try:
+        if connect:
+            from dask.distributed import as_completed
+
+            futs = [client.submit(run_step, job, i, pure=False) for i in todo]
+            try:
+                for fut in as_completed(futs):
+                    fut.result()
+                    finished += 1
+                    if bar is not None:
+                        bar.update(1)
+            except BaseException:
+                client.cancel(futs)
+                raise
+            finally:
+                client.close()
+        else:
+            from dask.callbacks import Callback
+
+            class Tick(Callback):
+                def _posttask(self, key, result, dsk, state, worker_id):
+                    nonlocal finished
+                    finished += 1
+                    if bar is not None:
+                        bar.update(1)
+
+            tasks = [dask.delayed(run_step, pure=False)(job, i) for i in todo]
+            with Tick():
+                dask.compute(*tasks, scheduler="threads", num_workers=n)
+    finally:
+        if bar is not None:
+            bar.close()
+    seconds = time.perf_counter() - t0
+    done_now = int(store.done().sum())
+    report = SeriesReport(len(job.frames), skipped, done_now, seconds, n, where)
+    if changed:
+        report.lines.append(f"{len(changed)} step(s) estimated again: frames they read "
+                            f"changed since (steps at frames "
+                            f"{[job.frames[i] for i in changed][:5]}...)")
+    rate = finished / seconds if seconds > 0 else float("nan")
+    report.lines.append(f"wrote {output}: {done_now} of {len(job.frames)} steps done "
+                        f"({finished} now in {seconds:.1f} s, {rate:.3f} steps/s; {skipped} "
+                        f"done by an earlier run); open with xarray.open_zarr('{output}')")
+    return report
+
+
+# --- a synthetic recording ---------------------------------------------------------------------
+
+def make_recording(output, params=None, *, progress: bool = False) -> list[str]:
+    """Render a growth recording (:class:`gridflow.generators.recording.GrowthRecording`)
+    into the recording store ``output``, one frame at a time (memory: one frame)."""
+    from gridflow.generators.recording import TRUTH_NAMES, GrowthRecording
+    from gridflow.io import check_output
+    from gridflow.recording import write_recording
+
+    out = Path(output)
+    if out.suffix.lower() != ".zarr":
+        raise UsageError(f"-o {output}: a recording is a Zarr store, e.g. -o rec.zarr")
+    check_output(out, suffixes=None, what="-o")
+    if out.exists():
+        raise UsageError(f"-o {output}: exists; a recording is written to a new name")
+    gen = GrowthRecording(params)
+    p = gen.params
+    T = p.frames
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        print(f"rendering {T} frames of {p.grid[0]}x{p.grid[1]} views of {p.width}x"
+              f"{p.height} px into {output} ...", file=sys.stderr, flush=True)
+        bar = tqdm(total=T, unit="frame", file=sys.stderr, dynamic_ncols=True)
+
+    def frames():
+        for k in range(T):
+            yield gen.frame(k), gen.truth(k)
+
+    t0 = time.perf_counter()
+    try:
+        write_recording(out, frames(), shape=gen.shape, focal_length=p.f,
+                        camera_spacing=p.spacing, frame_interval=p.frame_interval,
+                        truth_names=TRUTH_NAMES,
+                        source={"generator": "growth recording", "params": p.as_dict()},
+                        progress=(lambda n: bar.update(1)) if bar is not None else None)
+    finally:
+        if bar is not None:
+            bar.close()
+    return [f"wrote {output}: {T} frames of {p.grid[0]}x{p.grid[1]} views of {p.width}x"
+            f"{p.height} px, growth {p.growth:g} per frame x (1 + {p.rhythm:g} sin(2 pi t / "
+            f"{p.period:g})), in {time.perf_counter() - t0:.1f} s"]
+
+
+# --- what a grower looks at ----------------------------------------------------------------------
+
+def growth_table(maps, truth=None, *, quantity: str = "growth"):
+    """Per step of the map series ``maps``: the mean, median, 10th and 90th percentile of
+    ``quantity`` over the interior, and with a recording ``truth`` that has it, the truth's
+    mean and Q_rel (Eq. 22) over the interior.  Steps not done are left out.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``step, frame, time_s, mean, median, p10, p90, n_pixels`` (and
+        ``truth, q_rel``).
+    """
+    import pandas as pd
+
+    from gridflow.recording import MapStore
+
+    from .metrics import q_rel
+
+    store = MapStore.open(maps)
+    if quantity not in store.quantities:
+        raise UsageError(f"{maps}: holds no {quantity!r} maps (it has "
+                         f"{', '.join(store.quantities)}); growth needs --motion affine")
+    rec = open_recording(truth) if truth is not None else None
+    if rec is not None and quantity not in rec.truth_names:
+        raise UsageError(f"{truth}: holds no {quantity!r} truth (it has "
+                         f"{', '.join(rec.truth_names) or 'none'})")
+    g = store.group
+    frames, done = store.frames(), store.done()
+    interior = np.asarray(g["interior"][:], dtype=bool)
+    fi = store.attrs["gridflow"].get("frame_interval")
+    rows = []
+    for i in np.flatnonzero(done):
+        m = np.asarray(g[quantity][i], dtype=np.float64)
+        v = m[interior & np.isfinite(m)]
+        row = {"step": int(i), "frame": int(frames[i]),
+               "time_s": float(frames[i] * fi) if fi else np.nan,
+               "mean": float(v.mean()) if v.size else np.nan,
+               "median": float(np.median(v)) if v.size else np.nan,
+               "p10": float(np.percentile(v, 10)) if v.size else np.nan,
+               "p90": float(np.percentile(v, 90)) if v.size else np.nan,
+               "n_pixels": int(v.size)}
+        if rec is not None:
+            t = rec.truth(int(frames[i]))[quantity]
+            row["truth"] = float(t[interior].mean())
+            row["q_rel"] = q_rel(m, t, interior)
+        rows.append(row)
+    if not rows:
+        raise UsageError(f"{maps}: no step is done yet")
+    return pd.DataFrame(rows)
+
+
+def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -> list[Path]:
+    """The growth maps at chosen frames (a strip on one colour scale) and the mean growth
+    over the interior against time, with its 10-90 % spread and the truth where known.
+
+    Returns the files written (``growth_maps.png``, ``growth_series.png``)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from gridflow.io import atomic_write
+    from gridflow.recording import MapStore
+
+    store = MapStore.open(maps)
+    fig_dir = Path(fig_dir)
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    frames = list(table["frame"])
+    if times:
+        missing = [t for t in times if t not in frames]
+        if missing:
+            raise UsageError(f"--times {missing}: no finished step at those frames (steps at "
+                             f"{frames[0]}, {frames[1] if len(frames) > 1 else ''} ... "
+                             f"{frames[-1]})")
+        chosen = list(times)
+    else:
+        chosen = [frames[int(round(j))] for j in np.linspace(0, len(frames) - 1,
+                                                             min(6, len(frames)))]
+    interior = np.asarray(store.group["interior"][:], dtype=bool)
+    per_frame = 100.0          # shown in % per frame
+    imgs = []
+    for f in chosen:
+        i = int(table.loc[table["frame"] == f, "step"].iloc[0])
+        m = np.asarray(store.group[quantity][i], dtype=float) * per_frame
+        imgs.append(np.where(interior, m, np.nan))
+    lo = np.nanpercentile(np.concatenate([m[np.isfinite(m)] for m in imgs]), 1)
+    hi = np.nanpercentile(np.concatenate([m[np.isfinite(m)] for m in imgs]), 99)
+    fi = store.attrs["gridflow"].get("frame_interval")
+    label = (lambda f: f"frame {f} ({f * fi / 3600:.1f} h)") if fi else (lambda f: f"frame {f}")
+    fig, axes = plt.subplots(1, len(chosen), figsize=(2.6 * len(chosen) + 0.8, 3.0),
+                             squeeze=False, constrained_layout=True)
+    for ax, f, m in zip(axes[0], chosen, imgs):
+        im = ax.imshow(m, vmin=lo, vmax=hi, cmap="viridis")
+        ax.set_title(label(f), fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.colorbar(im, ax=axes[0], shrink=0.85, label="growth, % area per frame")
+    fig.suptitle(f"Growth maps ({maps})", fontsize=10)
+    out1 = fig_dir / "growth_maps.png"
+    with atomic_write(out1) as fh:
+        fig.savefig(fh, format="png", dpi=110)
+    plt.close(fig)
+
+    x = table["time_s"] / 3600 if fi else table["frame"]
+    fig, ax = plt.subplots(figsize=(7, 3.6), constrained_layout=True)
+    ax.fill_between(x, table["p10"] * per_frame, table["p90"] * per_frame, alpha=0.3,
+                    color="tab:green", label="10-90 % of the pixels")
+    ax.plot(x, table["mean"] * per_frame, color="tab:green", lw=1.5, label="mean, estimated")
+    if "truth" in table:
+        ax.plot(x, table["truth"] * per_frame, "k--", lw=1.0, label="truth")
+    ax.set_xlabel("time, h" if fi else "frame")
+    ax.set_ylabel("growth, % area per frame")
+    ax.legend(fontsize=8, loc="best")
+    ax.set_title("Mean growth over the interior", fontsize=10)
+    out2 = fig_dir / "growth_series.png"
+    with atomic_write(out2) as fh:
+        fig.savefig(fh, format="png", dpi=110)
+    plt.close(fig)
+    return [out1, out2]

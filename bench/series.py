@@ -55,6 +55,8 @@ class SeriesJob:
     model : str
     settings : dict
         Estimator settings (``ref_frame`` is set per step).
+    key : str
+        The store's key (a worker's opened store is reused only for the same key).
     threads : int
         numba threads per task.
     """
@@ -65,6 +67,7 @@ class SeriesJob:
     reach: int
     model: str
     settings: dict = field(default_factory=dict)
+    key: str = ""
     threads: int = 1
 
 
@@ -95,9 +98,18 @@ def _quantities(model: str, settings: dict, grid) -> list[str]:
 
 
 def _code_key() -> str:
+    """The code a step's maps depend on: the estimator and the modules a sweep row depends
+    on (:func:`gridflow.bench.sweep._code_fingerprint`), this module and the recording
+    format, and the library versions."""
+    import gridflow.recording as recording_module
+
     from .sweep import _code_fingerprint, _versions
 
-    return json.dumps({"code": _code_fingerprint(), "versions": _versions()}, sort_keys=True)
+    h = hashlib.sha1()
+    for f in (Path(__file__), Path(recording_module.__file__)):
+        h.update(f.read_bytes())
+    return json.dumps({"code": _code_fingerprint(), "series": h.hexdigest()[:12],
+                       "versions": _versions()}, sort_keys=True)
 
 
 def plan_series(recording, output, *, every: int = 1, model: str | None = None,
@@ -161,13 +173,14 @@ def plan_series(recording, output, *, every: int = 1, model: str | None = None,
                             quantities=quantities, frame_interval=rec.frame_interval,
                             attrs=attrs, inputs=[recording])
     job = SeriesJob(str(Path(recording).resolve()), str(out.resolve()), frames, reach, model,
-                    settings)
+                    settings, key)
     return rec, store, job
 
 
 @lru_cache(maxsize=4)
-def _opened(recording: str, store: str):
-    """The recording and store, opened once per process (a worker runs many steps)."""
+def _opened(recording: str, store: str, key: str):
+    """The recording and store, opened once per process and run (a worker runs many
+    steps; a store made anew under the same name has another key)."""
     import zarr
 
     return open_recording(recording), MapStore(Path(store), zarr.open_group(store, mode="r+"))
@@ -186,7 +199,7 @@ def run_step(job: SeriesJob, i: int) -> dict:
         numba.set_num_threads(max(1, min(job.threads, numba.config.NUMBA_NUM_THREADS)))
     except ImportError:
         pass
-    rec, store = _opened(job.recording, job.store)
+    rec, store = _opened(job.recording, job.store, job.key)
     k = job.frames[i]
     t0 = time.perf_counter()
     # the stamp before the read: a frame replaced during the read makes the next run

@@ -23,13 +23,13 @@ from pathlib import Path
 __all__ = ["main", "build_parser"]
 
 
-def _add_sinusoid_args(p: argparse.ArgumentParser) -> None:
-    from gridflow.generators import SinusoidParams
+def _add_dataclass_args(g, cls) -> None:
+    """One option per field of the parameter dataclass ``cls`` (``--wavelength-x``), its
+    default in the help; None when not given (:func:`_dataclass_values`)."""
     from gridflow.generators.sinusoid import TEXTURES
 
-    g = p.add_argument_group("sinusoid parameters (defaults: docs/reproduction.md)")
-    for fl in fields(SinusoidParams):
-        default = getattr(SinusoidParams(), fl.name)
+    for fl in fields(cls):
+        default = getattr(cls(), fl.name)
         flag = "--" + fl.name.replace("_", "-")
         if isinstance(default, tuple):
             g.add_argument(flag, type=type(default[0]), nargs=2, default=None,
@@ -38,6 +38,19 @@ def _add_sinusoid_args(p: argparse.ArgumentParser) -> None:
             g.add_argument(flag, choices=TEXTURES, default=None, help=f"default {default}")
         else:
             g.add_argument(flag, type=type(default), default=None, help=f"default {default}")
+
+
+def _dataclass_values(a, cls) -> dict:
+    """The fields of ``cls`` given on the command line (pairs as tuples)."""
+    return {fl.name: tuple(v) if isinstance(v, list) else v for fl in fields(cls)
+            if (v := getattr(a, fl.name, None)) is not None}
+
+
+def _add_sinusoid_args(p: argparse.ArgumentParser) -> None:
+    from gridflow.generators import SinusoidParams
+
+    _add_dataclass_args(p.add_argument_group("sinusoid parameters (defaults: "
+                                             "docs/reproduction.md)"), SinusoidParams)
 
 
 def _add_estimator_args(p: argparse.ArgumentParser) -> None:
@@ -137,10 +150,7 @@ def cmd_generate(a) -> int:
 
     from .single import generate
 
-    over = {fl.name: getattr(a, fl.name) for fl in fields(SinusoidParams)
-            if getattr(a, fl.name) is not None}
-    over = {k: tuple(v) if isinstance(v, list) else v for k, v in over.items()}
-    for line in generate(SinusoidParams(**over), output=a.output, hci=a.hci,
+    for line in generate(SinusoidParams(**_dataclass_values(a, SinusoidParams)), output=a.output, hci=a.hci,
                          float32=a.float32):
         print(line)
     return 0
@@ -214,10 +224,8 @@ def cmd_record(a) -> int:
 
     from .series import make_recording
 
-    over = {fl.name: getattr(a, fl.name) for fl in fields(RecordingParams)
-            if getattr(a, fl.name, None) is not None}
-    over = {k: tuple(v) if isinstance(v, list) else v for k, v in over.items()}
-    for line in make_recording(a.output, RecordingParams(**over),
+    params = RecordingParams(**_dataclass_values(a, RecordingParams))
+    for line in make_recording(a.output, params,
                                progress=not a.no_progress):
         print(line)
     return 0
@@ -563,14 +571,7 @@ def build_parser() -> argparse.ArgumentParser:
                                       "growing with a day/night rhythm, truth per frame")
     from gridflow.generators.recording import RecordingParams
 
-    for fl in fields(RecordingParams):
-        default = getattr(RecordingParams(), fl.name)
-        flag = "--" + fl.name.replace("_", "-")
-        if isinstance(default, tuple):
-            p.add_argument(flag, type=type(default[0]), nargs=2, default=None,
-                           metavar=("A", "B"), help=f"default {default[0]} {default[1]}")
-        else:
-            p.add_argument(flag, type=type(default), default=None, help=f"default {default}")
+    _add_dataclass_args(p, RecordingParams)
     p.add_argument("-o", "--output", required=True, help="output recording store (.zarr)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=cmd_record)

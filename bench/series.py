@@ -315,7 +315,8 @@ def run_series(recording, output, *, every: int = 1, model: str | None = None,
     changed = [i for i in np.flatnonzero(done)
                if rec.stamp(job.frames[i] - job.reach, job.frames[i] + job.reach + 1)
                != stamps[i]]
-    todo = [i for i in range(len(job.frames)) if not done[i] or i in set(changed)]
+    redo = set(changed)
+    todo = [i for i in range(len(job.frames)) if not done[i] or i in redo]
     skipped = len(job.frames) - len(todo)
     if limit is not None:
         todo = todo[:limit]

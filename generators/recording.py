@@ -24,7 +24,8 @@ import numpy as np
 
 from gridflow.errors import ParameterError
 
-from .sinusoid import SinusoidParams, _intersect_mapped, _normal, _pixel_grid, ground_truth
+from .sinusoid import (SinusoidParams, _intersect_mapped, _normal, _pixel_grid, ground_truth,
+                       texture, texture_wavenumbers)
 
 __all__ = ["RecordingParams", "GrowthRecording", "TRUTH_NAMES"]
 
@@ -136,8 +137,7 @@ class GrowthRecording:
         p, q = self.params, self.plane
         t = float(k)
         A = np.eye(3) + (self.scale(t) - 1.0) * self._P
-        kx = 2 * np.pi / (q.wavelength_x * q.Z0 / q.f)
-        ky = 2 * np.pi / (q.wavelength_y * q.Z0 / q.f)
+        kx, ky = texture_wavenumbers(q)
         light = np.exp(p.illumination * np.sin(2 * np.pi * t / p.period))
         Sy, Sx = p.grid
         out = np.empty((Sy, Sx, p.height, p.width))
@@ -148,11 +148,7 @@ class GrowthRecording:
                 sx = (j - (Sx - 1) / 2.0) * p.spacing[0]
                 # t = 0 in the ray cast: the plane does not translate, A(t) moves it
                 _, Xm, Ym = _intersect_mapped(q, A, self._x, self._y, sx, sy, 0.0)
-                if q.texture == "sum":
-                    tex = q.offset + 0.5 * q.amplitude * (np.sin(kx * Xm) + np.sin(ky * Ym))
-                else:
-                    tex = q.offset + q.amplitude * np.sin(kx * Xm) * np.sin(ky * Ym)
-                img = tex * light
+                img = texture(q, Xm, Ym, kx, ky) * light
                 if rng is not None:
                     img += p.noise * rng.standard_normal(img.shape)
                 out[i, j] = img

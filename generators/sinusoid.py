@@ -289,6 +289,20 @@ def _intersect_mapped(p: SinusoidParams, A: np.ndarray, x, y, sx: float, sy: flo
     return Z, (g22 * d1 - g12 * d2) / det, (g11 * d2 - g12 * d1) / det
 
 
+def texture_wavenumbers(p: SinusoidParams) -> tuple[float, float]:
+    """The texture's angular wavenumbers per world unit in material coordinates: its
+    wavelengths, given in pixels of the reference camera at depth ``Z0``."""
+    return (2 * np.pi / (p.wavelength_x * p.Z0 / p.f),
+            2 * np.pi / (p.wavelength_y * p.Z0 / p.f))
+
+
+def texture(p: SinusoidParams, Xm, Ym, kx: float, ky: float):
+    """The texture ``T(Xm, Ym)`` (module docstring) at material coordinates ``Xm, Ym``."""
+    if p.texture == "sum":
+        return p.offset + 0.5 * p.amplitude * (np.sin(kx * Xm) + np.sin(ky * Ym))
+    return p.offset + p.amplitude * np.sin(kx * Xm) * np.sin(ky * Ym)
+
+
 def make_sinusoid(params: SinusoidParams | None = None, *, dtype=np.float64,
                   **overrides) -> SyntheticVolume:
     """Render a sinusoid volume with ground truth.
@@ -319,8 +333,7 @@ def make_sinusoid(params: SinusoidParams | None = None, *, dtype=np.float64,
     x, y = _pixel_grid(p)
     Sy, Sx = p.grid
     dsx, dsy = p.spacing
-    kx = 2 * np.pi / (p.wavelength_x * p.Z0 / p.f)
-    ky = 2 * np.pi / (p.wavelength_y * p.Z0 / p.f)
+    kx, ky = texture_wavenumbers(p)
     vol = np.empty((p.frames, Sy, Sx, p.height, p.width), dtype=dtype)
     rng = np.random.default_rng(p.seed)
     # a plane that only translates keeps the paper's closed form (bit for bit as before)
@@ -337,11 +350,7 @@ def make_sinusoid(params: SinusoidParams | None = None, *, dtype=np.float64,
                     _, Xm, Ym = _intersect_deforming(p, G, x, y, sx, sy, t)
                 h = ((p.a1 + p.a1x * Xm + p.a1y * Ym) * t
                      + (p.a2 + p.a2x * Xm + p.a2y * Ym) * t * t)
-                if p.texture == "sum":
-                    tex = p.offset + 0.5 * p.amplitude * (np.sin(kx * Xm) + np.sin(ky * Ym))
-                else:
-                    tex = p.offset + p.amplitude * np.sin(kx * Xm) * np.sin(ky * Ym)
-                img = tex * np.exp(h)
+                img = texture(p, Xm, Ym, kx, ky) * np.exp(h)
                 if p.noise > 0:
                     # image by image, in C order: reproducible from the seed alone, and
                     # no volume-sized float64 temporary (add_noise draws the same numbers)

@@ -200,9 +200,9 @@ MUTANTS = [
            (TRUTH,), "the a1y truth from a1x"),
     Mutant("render-a1y", "generators/sinusoid.py",
            "p.a1y * Ym) * t\n                     + (p.a2 + p.a2x * Xm + p.a2y * Ym) * t * t)\n"
-           "                if p.texture",
+           "                img = texture(",
            "p.a1y * Xm) * t\n                     + (p.a2 + p.a2x * Xm + p.a2y * Ym) * t * t)\n"
-           "                if p.texture", (TRUTH,),
+           "                img = texture(", (TRUTH,),
            "the rendering's a1y term along X"),
     Mutant("render-uy-sign", "generators/sinusoid.py",
            "p.Z_Y * (sy - p.U_Y * t)", "p.Z_Y * (sy + p.U_Y * t)", (TRUTH,),

@@ -8,7 +8,6 @@ the throughput, which bench/series_bench.py measures.
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys

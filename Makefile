@@ -68,7 +68,8 @@ FIGS      := $(FIGDIR)/fig1.png $(FIGDIR)/fig2.png \
              $(FIGDIR)/fig_growth.png
 OUTPUTS   := $(FIGS) results/claims.csv results/claims_paper_setup.csv results/cube.csv \
              results/peers_depth.csv results/claims_growth.csv results/leaf.csv \
-             results/paper_terms.csv results/claims_paper_setup_zoom.csv
+             results/paper_terms.csv results/claims_paper_setup_zoom.csv \
+             results/cube_variants.csv
 CUBE_SRC  := $(wildcard estimator/*.py scenes/*.py) base/loader.py base/errors.py \
              bench/cube_experiment.py bench/figures.py bench/metrics.py bench/markdown.py
 
@@ -114,6 +115,11 @@ $(FIGDIR)/fig2.png: bench/figures.py generators/sinusoid.py | $(STAMP)
 # The cube: rendered with POV-Ray into work/cube/ (cached, not committed), then estimated.
 $(FIGDIR)/fig1.png results/cube.csv &: $(CUBE_SRC) | $(STAMP) povray
 	$(BIN)/gridflow cube --csv results/cube.csv --fig-dir $(FIGDIR) --write-doc docs/reproduction.md
+
+# What sets the cube's motion directions: five more renderings of the cube (cached in
+# work/cube/, 1-5 min each the first time), the full model's directions on each.
+results/cube_variants.csv: $(CUBE_SRC) bench/cube_variants.py | $(STAMP) povray
+	$(BIN)/gridflow cube-variants --csv $@ --write-doc docs/reproduction.md
 
 # The growing leaf: rendered with POV-Ray into work/cube/ (cached), growth maps per region.
 LEAF_SRC := $(wildcard estimator/*.py scenes/*.py) base/loader.py base/errors.py \

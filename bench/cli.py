@@ -429,6 +429,32 @@ def cmd_cube(a) -> int:
     return 0
 
 
+def cmd_cube_variants(a) -> int:
+    from gridflow.io import atomic_write, check_output
+
+    from .cube_variants import run_cube_variants, variants_markdown
+    from .markdown import rewrite_block
+
+    check_output(a.csv, suffixes=".csv", what="--csv")
+    check_output(a.cache, suffixes=None, what="--cache")
+    if a.write_doc:
+        check_output(a.write_doc, suffixes=".md", what="--write-doc")
+    print("the cube in 6 variants, one option changed at a time: each scene rendered with "
+          "POV-Ray once (cached in the --cache folder; 1-5 min each the first time) and "
+          "estimated (full model)")
+    df = run_cube_variants(a.cache, progress=not a.no_progress)
+    with atomic_write(a.csv, "w") as fh:
+        df.to_csv(fh, index=False, float_format="%.6g")
+    print(df.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+    print(f"wrote {a.csv}")
+    if a.write_doc:
+        # the markdown from the CSV as written, so the doc and the file agree digit for digit
+        import pandas as pd
+        rewrite_block(a.write_doc, "cube-variants", variants_markdown(pd.read_csv(a.csv)))
+        print(f"wrote {a.write_doc}")
+    return 0
+
+
 def cmd_leaf(a) -> int:
     from gridflow.io import check_output
     from gridflow.scenes import LeafScene
@@ -646,6 +672,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--write-doc", help="markdown file whose cube section to rewrite")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=cmd_cube)
+
+    p = sub.add_parser("cube-variants",
+                       help="what sets the cube's motion directions: window, image size, "
+                            "Omega in time, spotlight, texture varied one at a time")
+    p.add_argument("--cache", default="work/cube", help="render cache (default work/cube)")
+    p.add_argument("--csv", default="results/cube_variants.csv",
+                   help="per-variant table (default results/cube_variants.csv)")
+    p.add_argument("--write-doc", help="markdown file whose cube-variants section to rewrite")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=cmd_cube_variants)
 
     p = sub.add_parser("leaf", help="render a growing leaf (POV-Ray), estimate its growth "
                                     "map, per-region table and figure")

@@ -21,6 +21,7 @@ import pytest
 from gridflow.bench.claims import (check_claims, claims_markdown, paper_terms,
                                    paper_terms_markdown, render_checks, GROWTH_CLAIMS)
 from gridflow.bench.cube_experiment import cube_markdown, observation11, observation12
+from gridflow.bench.cube_variants import variants_markdown
 from gridflow.bench.markdown import replace_block
 from gridflow.bench.sweep import read_sweep_csv
 
@@ -79,6 +80,39 @@ def test_cube_block_agrees_with_cube_csv():
     assert source, "the cube block does not name its source"
     checks = observation11(table) + observation12(table)
     assert text == cube_markdown(table, checks, source.group(1))
+
+
+def test_cube_variants_block_agrees_with_its_csv():
+    table = pd.read_csv(RESULTS / "cube_variants.csv")
+    assert block("cube-variants") == variants_markdown(table)
+
+
+def test_cube_variants_as_shipped_is_the_cube_table():
+    """The study's first row is the scene and settings of ``results/cube.csv``: its numbers
+    are that table's full-model interiors (both written with 6 significant digits)."""
+    v = pd.read_csv(RESULTS / "cube_variants.csv")
+    v = v[v.variant == "shipped"].set_index("face")
+    c = pd.read_csv(RESULTS / "cube.csv")
+    c = c[(c.region == "interior") & (c.model == "full")].set_index("face")
+    assert sorted(v.index) == sorted(c.index) == ["left", "right"]
+    for col in ("n_pixels", "shown_right", "median_angle_deg", "p90_angle_deg", "q_rel_Uz"):
+        assert (v[col] == c.loc[v.index, col]).all(), col
+
+
+def test_cube_variants_conclusions_follow_the_numbers():
+    """A conclusion is written only where the numbers support it: with the no-spotlight
+    row below "almost everywhere", the sentence blaming the spotlight goes."""
+    table = pd.read_csv(RESULTS / "cube_variants.csv")
+    text = variants_markdown(table)
+    assert "The spotlight is the cause" in text
+    worse = table.copy()
+    worse.loc[(worse.variant == "no_spotlight") & (worse.face == "left"), "shown_right"] = 0.5
+    text = variants_markdown(worse)
+    assert "The spotlight is the cause" not in text
+    assert "does not explain" in text
+    moved = table.copy()
+    moved.loc[(moved.variant == "paper_window") & (moved.face == "left"), "shown_right"] += 0.3
+    assert "Neither the window nor the image size" not in variants_markdown(moved)
 
 
 def test_a_stale_block_is_caught(claims):

@@ -231,6 +231,21 @@ def cmd_record(a) -> int:
     return 0
 
 
+def cmd_record_leaf(a) -> int:
+    from gridflow.scenes import LeafRecording
+
+    from .series import make_leaf_recording
+
+    scene = LeafRecording(frames=a.frames, width=a.size, height=a.size, grid=(a.grid, a.grid),
+                          growth=a.growth, rhythm=a.rhythm, period=a.period,
+                          spot_swing_deg=a.spot_swing, frame_interval=a.frame_interval,
+                          margin=a.margin)
+    for line in make_leaf_recording(a.output, scene, cache=a.cache,
+                                    progress=not a.no_progress):
+        print(line)
+    return 0
+
+
 def cmd_growth(a) -> int:
     from gridflow.io import check_output
 
@@ -601,6 +616,38 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="output recording store (.zarr)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=cmd_record)
+
+    p = sub.add_parser("record-leaf", help="render the POV-Ray leaf as a recording (Zarr): "
+                                           "growing with a day/night rhythm under a "
+                                           "swinging spotlight, truth per frame")
+    from gridflow.scenes import LeafRecording
+
+    d = LeafRecording()
+    p.add_argument("--frames", type=_positive_int, default=d.frames,
+                   help=f"time instances (default {d.frames})")
+    p.add_argument("--size", type=_positive_int, default=d.width,
+                   help=f"image width = height, px (default {d.width})")
+    p.add_argument("--grid", type=_positive_int, default=d.grid[0],
+                   help=f"cameras per side, odd (default {d.grid[0]})")
+    p.add_argument("--growth", type=float, default=d.growth,
+                   help=f"mean relative area rate per frame (default {d.growth:g})")
+    p.add_argument("--rhythm", type=float, default=d.rhythm,
+                   help=f"relative day/night amplitude of the rate, in [0, 1) "
+                        f"(default {d.rhythm:g})")
+    p.add_argument("--period", type=float, default=d.period,
+                   help=f"frames per day (default {d.period:g})")
+    p.add_argument("--spot-swing", type=float, default=d.spot_swing_deg, metavar="DEG",
+                   help=f"the spotlight's azimuth amplitude over the day, degrees "
+                        f"(default {d.spot_swing_deg:g})")
+    p.add_argument("--frame-interval", type=float, default=d.frame_interval, metavar="S",
+                   help=f"seconds between frames (default {d.frame_interval:g})")
+    p.add_argument("--margin", type=float, default=d.margin, metavar="PX",
+                   help=f"the growth truth is given this far inside the leaf's edge "
+                        f"(default {d.margin:g}: the default window's radius)")
+    p.add_argument("--cache", default="work/cube", help="render cache (default work/cube)")
+    p.add_argument("-o", "--output", required=True, help="output recording store (.zarr)")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=cmd_record_leaf)
 
     p = sub.add_parser("growth", help="a map series' growth: maps at chosen frames, the mean "
                                       "over time with its spread (and against truth)")

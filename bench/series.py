@@ -395,12 +395,9 @@ def run_series(recording, output, *, every: int = 1, model: str | None = None,
 
 # --- a synthetic recording ---------------------------------------------------------------------
 
-def make_recording(output, params=None, *, progress: bool = False) -> list[str]:
-    """Render a growth recording (:class:`gridflow.generators.recording.GrowthRecording`)
-    into the recording store ``output``, one frame at a time (memory: one frame)."""
-    from gridflow.generators.recording import TRUTH_NAMES, GrowthRecording
+def _new_store(output) -> Path:
+    """``output`` as a new recording store's path, or a clear error."""
     from gridflow.io import check_output
-    from gridflow.recording import write_recording
 
     out = Path(output)
     if out.suffix.lower() != ".zarr":
@@ -408,34 +405,86 @@ def make_recording(output, params=None, *, progress: bool = False) -> list[str]:
     check_output(out, suffixes=None, what="-o")
     if out.exists():
         raise UsageError(f"-o {output}: exists; a recording is written to a new name")
-    gen = GrowthRecording(params)
-    p = gen.params
-    T = p.frames
+    return out
+
+
+def _write_frames(out: Path, T: int, frame, *, shape, focal_length, camera_spacing,
+                  frame_interval, truth_names, source, progress: bool, what: str) -> float:
+    """Write ``frame(k) -> (views, truth)`` for k < T into the recording store ``out``,
+    one frame in memory at a time, with a progress bar; returns the seconds taken."""
+    from gridflow.recording import write_recording
+
     bar = None
     if progress:
         from tqdm import tqdm
 
-        print(f"rendering {T} frames of {p.grid[0]}x{p.grid[1]} views of {p.width}x"
-              f"{p.height} px into {output} ...", file=sys.stderr, flush=True)
+        print(f"{what} into {out} ...", file=sys.stderr, flush=True)
         bar = tqdm(total=T, unit="frame", file=sys.stderr, dynamic_ncols=True)
-
-    def frames():
-        for k in range(T):
-            yield gen.frame(k), gen.truth(k)
-
     t0 = time.perf_counter()
     try:
-        write_recording(out, frames(), shape=gen.shape, focal_length=p.f,
-                        camera_spacing=p.spacing, frame_interval=p.frame_interval,
-                        truth_names=TRUTH_NAMES,
-                        source={"generator": "growth recording", "params": p.as_dict()},
+        write_recording(out, (frame(k) for k in range(T)), shape=shape,
+                        focal_length=focal_length, camera_spacing=camera_spacing,
+                        frame_interval=frame_interval, truth_names=truth_names,
+                        source=source,
                         progress=(lambda n: bar.update(1)) if bar is not None else None)
     finally:
         if bar is not None:
             bar.close()
-    return [f"wrote {output}: {T} frames of {p.grid[0]}x{p.grid[1]} views of {p.width}x"
-            f"{p.height} px, growth {p.growth:g} per frame x (1 + {p.rhythm:g} sin(2 pi t / "
-            f"{p.period:g})), in {time.perf_counter() - t0:.1f} s"]
+    return time.perf_counter() - t0
+
+
+def make_recording(output, params=None, *, progress: bool = False) -> list[str]:
+    """Render a growth recording (:class:`gridflow.generators.recording.GrowthRecording`)
+    into the recording store ``output``, one frame at a time (memory: one frame)."""
+    from gridflow.generators.recording import TRUTH_NAMES, GrowthRecording
+
+    out = _new_store(output)
+    gen = GrowthRecording(params)
+    p = gen.params
+    T = p.frames
+    size = f"{p.grid[0]}x{p.grid[1]} views of {p.width}x{p.height} px"
+    seconds = _write_frames(
+        out, T, lambda k: (gen.frame(k), gen.truth(k)), shape=gen.shape, focal_length=p.f,
+        camera_spacing=p.spacing, frame_interval=p.frame_interval, truth_names=TRUTH_NAMES,
+        source={"generator": "growth recording", "params": p.as_dict()}, progress=progress,
+        what=f"rendering {T} frames of {size}")
+    return [f"wrote {output}: {T} frames of {size}, growth {p.growth:g} per frame x (1 + "
+            f"{p.rhythm:g} sin(2 pi t / {p.period:g})), in {seconds:.1f} s"]
+
+
+def make_leaf_recording(output, scene=None, *, cache="work/cube",
+                        progress: bool = False) -> list[str]:
+    """Render the POV-Ray leaf as a recording (:class:`gridflow.scenes.LeafRecording`)
+    into the recording store ``output``, with its truth per frame.
+
+    The images are rendered (in parallel, cached) into a camera-grid folder under
+    ``cache``, then copied frame by frame into the store beside each frame's truth
+    (memory: one frame).
+    """
+    from gridflow.scenes import LEAF_TRUTH_NAMES, LeafRecording, render_cube
+
+    out = _new_store(output)
+    scene = scene if scene is not None else LeafRecording()
+    Sy, Sx = scene.grid
+    T = scene.frames
+    size = f"{Sy}x{Sx} views of {scene.width}x{scene.height} px"
+    if progress:
+        print(f"rendering the leaf with POV-Ray: {T} frames of {size} ({T * Sy * Sx} "
+              f"images, cached in {cache}) ...", file=sys.stderr, flush=True)
+    t0 = time.perf_counter()
+    folder = render_cube(scene, cache, progress=progress)
+    rendered = time.perf_counter() - t0
+    images = open_recording(folder)
+    seconds = _write_frames(
+        out, T, lambda k: (images.read(k, k + 1)[0], scene.truth_at(k)), shape=images.shape,
+        focal_length=scene.f, camera_spacing=scene.spacing,
+        frame_interval=scene.frame_interval, truth_names=LEAF_TRUTH_NAMES,
+        source={"scene": "POV-Ray leaf recording", "params": scene.as_dict(),
+                "images": folder.name}, progress=progress,
+        what="copying the frames and writing their truth")
+    return [f"wrote {output}: {T} frames of {size} (the POV-Ray leaf, {folder}: "
+            f"{rendered:.1f} s to render or find), growth {scene.growth:g} per frame x (1 + "
+            f"{scene.rhythm:g} sin(2 pi t / {scene.period:g})), in {seconds:.1f} s"]
 
 
 # --- what a grower looks at ----------------------------------------------------------------------
@@ -443,7 +492,9 @@ def make_recording(output, params=None, *, progress: bool = False) -> list[str]:
 def growth_table(maps, truth=None, *, quantity: str = "growth"):
     """Per step of the map series ``maps``: the mean, median, 10th and 90th percentile of
     ``quantity`` over the interior, and with a recording ``truth`` that has it, the truth's
-    mean and Q_rel (Eq. 22) over the interior.  Steps not done are left out.
+    mean and Q_rel (Eq. 22); with a truth, every column is over the interior's pixels where
+    the truth is given (a scene's truth is NaN off the object).  Steps not done are left
+    out.
 
     Returns
     -------
@@ -472,7 +523,13 @@ def growth_table(maps, truth=None, *, quantity: str = "growth"):
     rows = []
     for i in np.flatnonzero(done):
         m = np.asarray(g[quantity][i], dtype=np.float64)
-        v = m[interior & np.isfinite(m)]
+        mask = interior
+        if rec is not None:
+            # where the truth is given (a scene's truth is NaN off the object and near its
+            # edge): the statistics and Q_rel over the same pixels
+            t = np.asarray(rec.truth(int(frames[i]))[quantity], dtype=np.float64)
+            mask = interior & np.isfinite(t)
+        v = m[mask & np.isfinite(m)]
         row = {"step": int(i), "frame": int(frames[i]),
                "time_s": float(frames[i] * fi) if fi else np.nan,
                "mean": float(v.mean()) if v.size else np.nan,
@@ -481,9 +538,8 @@ def growth_table(maps, truth=None, *, quantity: str = "growth"):
                "p90": float(np.percentile(v, 90)) if v.size else np.nan,
                "n_pixels": int(v.size)}
         if rec is not None:
-            t = rec.truth(int(frames[i]))[quantity]
-            row["truth"] = float(t[interior].mean())
-            row["q_rel"] = q_rel(m, t, interior)
+            row["truth"] = float(t[mask].mean()) if mask.any() else np.nan
+            row["q_rel"] = q_rel(m, t, mask)
         rows.append(row)
     if not rows:
         raise UsageError(f"{maps}: no step is done yet")

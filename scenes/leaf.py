@@ -30,7 +30,7 @@ from gridflow.errors import ParameterError
 
 from .cube import POV_FLIP, pov_vec
 
-__all__ = ["LeafScene", "leaf_truth", "leaf_outline"]
+__all__ = ["LeafScene", "LeafRecording", "leaf_truth", "leaf_outline", "LEAF_TRUTH_NAMES"]
 
 _SDL_VERSION = "leaf-sdl-1"
 
@@ -111,10 +111,20 @@ class LeafScene:
         """The leaf's base point, the fixed point of its growth, at frame offset ``t``."""
         return self.center(t) + self.rotation() @ np.array([0.0, -self.leaf_length / 2, 0.0])
 
+    def scale(self, t: float) -> float:
+        """The leaf's linear size at frame offset ``t`` relative to the reference frame:
+        ``1 + growth t / 2``."""
+        return 1.0 + 0.5 * self.growth * t
+
+    def growth_rate(self, t: float) -> float:
+        """Relative area rate at frame offset ``t``, ``2 s'(t) / s(t)`` (``growth`` at the
+        reference frame)."""
+        return self.growth / self.scale(t)
+
     def transform(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """``(A, b)``: local leaf coordinates ``p`` (base-centred at ``(0, -L/2, 0)``) to
         the model frame, ``X = A p + b`` at frame offset ``t``."""
-        s = 1.0 + 0.5 * self.growth * t
+        s = self.scale(t)
         R = self.rotation()
         pb = np.array([0.0, -self.leaf_length / 2, 0.0])
         A = s * R
@@ -178,8 +188,10 @@ class LeafScene:
         return leaf_truth(self)
 
 
-def leaf_truth(scene: LeafScene, margin: float = 12.0) -> dict[str, np.ndarray]:
-    """Ground truth at the reference camera and frame, from the scene's geometry.
+def leaf_truth(scene: LeafScene, margin: float = 12.0,
+               frame: int | None = None) -> dict[str, np.ndarray]:
+    """Ground truth at the reference camera and ``frame`` (default the reference frame),
+    from the scene's geometry.
 
     Returns
     -------
@@ -187,15 +199,18 @@ def leaf_truth(scene: LeafScene, margin: float = 12.0) -> dict[str, np.ndarray]:
         ``Z, Zx, Zy, Ux, Uy, Uz`` (the velocity of the leaf point each pixel sees),
         ``growth``, ``rotation``, ``Zx_t``, ``Zy_t`` (NaN off the leaf), ``leaf`` (bool),
         ``interior`` (leaf pixels at least ``margin`` px from its edge), ``spot_angle``
-        (degrees from the spotlight's axis at the reference frame).
+        (degrees from the spotlight's axis at ``frame``).
     """
     from scipy.ndimage import distance_transform_edt
+
+    k = scene.ref_frame if frame is None else int(frame)
+    t = float(k - scene.ref_frame)
 
     H, W = scene.height, scene.width
     x = np.arange(W) - (W - 1) / 2
     y = np.arange(H) - (H - 1) / 2
     X, Y = np.meshgrid(x, y)
-    A, b = scene.transform(0.0)
+    A, b = scene.transform(t)
     n = scene.rotation() @ np.array([0.0, 0.0, 1.0])
     r = np.stack([X / scene.f, Y / scene.f, np.ones_like(X)], axis=-1)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -205,18 +220,91 @@ def leaf_truth(scene: LeafScene, margin: float = 12.0) -> dict[str, np.ndarray]:
     s = (local[..., 1] + scene.leaf_length / 2) / scene.leaf_length
     leaf = (s >= 0) & (s <= 1) & (np.abs(local[..., 0]) <= leaf_outline(s) * scene.leaf_width)
     leaf &= Z > 0
-    # velocity: the base moves with (0, 0, U_Z); the rest grows away from it
-    V = np.array([0.0, 0.0, scene.U_Z]) + 0.5 * scene.growth * (P - scene.base(0.0))
+    # velocity: the base moves with (0, 0, U_Z); the rest grows away from it at s'/s,
+    # half the area rate
+    g = scene.growth_rate(t)
+    V = np.array([0.0, 0.0, scene.U_Z]) + 0.5 * g * (P - scene.base(t))
     nan = lambda a: np.where(leaf, a, np.nan)  # noqa: E731
     const = lambda v: nan(np.full((H, W), float(v)))  # noqa: E731
     Zx, Zy = -n[0] / n[2], -n[1] / n[2]
-    L = scene.light(scene.ref_frame)
-    axis = scene.center(0.0) - L
+    L = scene.light(k)
+    axis = scene.center(t) - L
     d = P - L
     cos = (d @ axis) / (np.linalg.norm(d, axis=-1) * np.linalg.norm(axis))
     return {"Z": nan(Z), "Zx": const(Zx), "Zy": const(Zy),
             "Ux": nan(V[..., 0]), "Uy": nan(V[..., 1]), "Uz": nan(V[..., 2]),
-            "growth": const(scene.growth), "rotation": const(0.0), "Zx_t": const(0.0),
+            "growth": const(g), "rotation": const(0.0), "Zx_t": const(0.0),
             "Zy_t": const(0.0), "leaf": leaf,
             "interior": leaf & (distance_transform_edt(leaf) >= margin),
             "spot_angle": nan(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))}
+
+
+@dataclass(frozen=True)
+class LeafRecording(LeafScene):
+    """The leaf as a long recording: it grows at a rate that follows a day/night rhythm,
+    under a spotlight that swings across it with the same rhythm, with truth per frame.
+
+    Time runs from frame 0 (``ref_frame`` is 0: frame ``k`` is time ``t = k``).  The
+    relative area rate is ``g(t) = growth (1 + rhythm sin(2 pi t / period))`` and the
+    leaf's linear size, about its base, ``s(t) = exp(1/2 integral_0^t g)`` (as the
+    synthetic plane of :mod:`gridflow.generators.recording`).  The spotlight's azimuth is
+    ``spot_swing_deg sin(2 pi t / period)`` about the leaf's centre, so each pixel's
+    brightness changes smoothly with the day.  ``U_Z`` is 0 by default: a leaf held in
+    place, as a growth experiment holds it (a constant approach over hundreds of frames
+    would leave the cameras' depth of field).
+
+    Rendering (:func:`scenes.render.render_cube`) writes the images of every frame into a
+    camera-grid folder without truth (a recording's folder carries none);
+    :meth:`truth_at` gives each frame's.
+    """
+
+    frames: int = 60
+    U_Z: float = 0.0
+    rhythm: float = 0.8
+    period: float = 40.0
+    spot_swing_deg: float = 25.0
+    frame_interval: float = 120.0
+    margin: float = 16.0               # px: the truth's growth is given this far inside
+
+    name = "leafrec"
+
+    def __post_init__(self):
+        super().__post_init__()
+        if not 0 <= self.rhythm < 1:
+            raise ParameterError(f"rhythm {self.rhythm} must be in [0, 1): the leaf "
+                                 "never shrinks")
+        if not self.period > 0:
+            raise ParameterError(f"period {self.period} must be positive (frames)")
+
+    @property
+    def ref_frame(self) -> int:
+        return 0
+
+    def growth_rate(self, t) -> float:
+        return float(self.growth * (1.0 + self.rhythm * np.sin(2 * np.pi * t / self.period)))
+
+    def scale(self, t: float) -> float:
+        w = 2 * np.pi / self.period
+        integral = self.growth * (t + self.rhythm * (1.0 - np.cos(w * t)) / w)
+        return float(np.exp(0.5 * integral))
+
+    def light(self, k: int) -> np.ndarray:
+        az = np.deg2rad(self.spot_swing_deg * np.sin(2 * np.pi * k / self.period))
+        c = self.center(float(k))
+        return c + np.array([self.spot_distance * np.sin(az), self.spot_height,
+                             -self.spot_distance * np.cos(az)])
+
+    def truth(self) -> dict:
+        return {}
+
+    def truth_at(self, k: int) -> dict[str, np.ndarray]:
+        """Truth of frame ``k`` at the centre camera, each shape (H, W): ``Z``, ``Ux``,
+        ``Uy``, ``Uz`` on the leaf and ``growth`` on its interior (``margin`` px inside
+        its edge, where the estimator's window lies on the leaf), NaN elsewhere."""
+        t = leaf_truth(self, margin=self.margin, frame=k)
+        out = {n: t[n] for n in ("Z", "Ux", "Uy", "Uz")}
+        out["growth"] = np.where(t["interior"], t["growth"], np.nan)
+        return out
+
+
+LEAF_TRUTH_NAMES = ("Z", "Ux", "Uy", "Uz", "growth")

@@ -25,13 +25,17 @@ readable with ``xarray.open_zarr``::
       time  (n,)          frame index of each step     (dimension coordinate)
       time_s (n,)         seconds from the first frame (where the interval is known)
       y (H,), x (W,)      pixel row and column
-      <quantity> (time, y, x)  float32, one chunk per step, NaN until written
-      interior (y, x)     bool: pixels free of border effects
-      stamp (time,)       int64: the frames each step read, as they were (names, sizes, times)
-      done (time,)        uint8: 1 once every map of that step is written
+      <quantity> (time, y, x)  float32, one chunk per step and row band, NaN until written
+      interior (y, x)     bool: pixels free of border effects (one chunk per row band)
+      stamp (time, band)  int64: the frames each step read, as they were (names, sizes, times)
+      done (time, band)   uint8: 1 once every map of that step's row band is written
 
+A step is estimated whole (one band, ``attrs["gridflow"]["band_rows"]`` = H) or, where one
+step's frames would not fit the memory budget, in row bands of ``band_rows`` rows, each
+its own task reading only its rows (and the filters' halo around them).  Each band is its
+own chunk of every array, so tasks on different processes never write the same chunk.
 Each chunk is written by Zarr as a temporary file renamed into place; ``done`` is set only
-after all of a step's maps, so a step interrupted half-way is done again by the next run,
+after all of a band's maps, so a band interrupted half-way is done again by the next run,
 and so is a done step whose frames changed since (their ``stamp``: a frame repaired or
 replaced).
 """
@@ -53,6 +57,7 @@ __all__ = ["Recording", "open_recording", "write_recording", "is_recording_store
 RECORDING_KIND = "recording"
 MAPS_KIND = "maps"
 FORMAT_VERSION = 1
+MAPS_VERSION = 2             # 2: row bands (stamp and done per step and band)
 
 
 class RecordingError(GridflowError):
@@ -123,12 +128,18 @@ class Recording:
     def frames(self) -> int:
         return self.shape[0]
 
-    def read(self, start: int, stop: int) -> np.ndarray:
-        """Frames ``start .. stop - 1`` as float64, shape ``(stop - start, Sy, Sx, H, W)``."""
+    def read(self, start: int, stop: int, rows: tuple | None = None) -> np.ndarray:
+        """Frames ``start .. stop - 1`` as float64, shape ``(stop - start, Sy, Sx, H, W)``;
+        with ``rows = (r0, r1)`` only image rows ``r0 .. r1 - 1`` (a row band: its memory
+        is the band's, not the frame's)."""
         if not 0 <= start < stop <= self.frames:
             raise RecordingError(f"{self.path}: frames {start}..{stop - 1} requested of "
                                  f"0..{self.frames - 1}")
-        return self._reader.read(start, stop)
+        H = self.shape[3]
+        r0, r1 = (0, H) if rows is None else (int(rows[0]), int(rows[1]))
+        if not 0 <= r0 < r1 <= H:
+            raise RecordingError(f"{self.path}: rows {r0}..{r1 - 1} requested of 0..{H - 1}")
+        return self._reader.read(start, stop, r0, r1)
 
     def truth(self, frame: int) -> dict[str, np.ndarray]:
         """Ground truth at the reference camera and ``frame``: name to ``(H, W)``."""
@@ -233,9 +244,9 @@ class _ZarrReader:
                                          f"expected {(T, H, W)}")
         return Recording(path, vol.shape, f, ds, pp, fi, names, cls(path, group))
 
-    def read(self, start: int, stop: int) -> np.ndarray:
+    def read(self, start: int, stop: int, r0: int, r1: int) -> np.ndarray:
         try:
-            out = np.asarray(self.volume[start:stop], dtype=np.float64)
+            out = np.asarray(self.volume[start:stop, :, :, r0:r1], dtype=np.float64)
         except Exception as exc:
             raise RecordingError(f"{self.path}/volume: frames {start}..{stop - 1} unreadable "
                                  f"({type(exc).__name__}: {exc})") from None
@@ -301,11 +312,11 @@ class _FolderReader:
         return Recording(path, (T, Sy, Sx, H, W), m["_f"], (m["_ds"][0], m["_ds"][1]), pp,
                          m.get("frame_interval"), (), reader)
 
-    def read(self, start: int, stop: int) -> np.ndarray:
+    def read(self, start: int, stop: int, r0: int, r1: int) -> np.ndarray:
         from .loader import LoaderError, _read_image, check_like
 
         Sy, Sx = self.m["_grid"]
-        out = np.empty((stop - start, Sy, Sx) + self.image_shape)
+        out = np.empty((stop - start, Sy, Sx, r1 - r0, self.image_shape[1]))
         try:
             for t in range(start, stop):
                 for k, p in enumerate(self.by_frame[t]):
@@ -314,7 +325,7 @@ class _FolderReader:
                                           "missing or not a regular file")
                     img, kind = _read_image(p)
                     check_like(p, img, kind, self.first.name, self.image_shape, self.kind)
-                    out[t - start, k // Sx, k % Sx] = img
+                    out[t - start, k // Sx, k % Sx] = img[r0:r1]
         except LoaderError as exc:
             raise RecordingError(str(exc)) from None
         return out
@@ -424,10 +435,24 @@ class MapStore:
     def quantities(self) -> list[str]:
         return list(self.attrs["gridflow"]["quantities"])
 
+    @property
+    def band_rows(self) -> int:
+        return int(self.attrs["gridflow"]["band_rows"])
+
+    def bands(self) -> list[tuple[int, int]]:
+        """The row bands ``(r0, r1)``, top to bottom."""
+        H = int(self.group["y"].shape[0])
+        b = self.band_rows
+        return [(r0, min(r0 + b, H)) for r0 in range(0, H, b)]
+
     @classmethod
     def create(cls, path, *, key: str, frames: list[int], shape: tuple, quantities: list,
-               frame_interval: float | None, attrs: dict, inputs=()) -> "MapStore":
+               frame_interval: float | None, attrs: dict, inputs=(),
+               band_rows: int | None = None) -> "MapStore":
         """Make the store, or reopen it when it holds a run with the same ``key``.
+
+        ``band_rows``: rows per band (default the image's height: one band); part of the
+        layout, so it belongs in ``key``.
 
         Raises
         ------
@@ -460,6 +485,8 @@ class MapStore:
             return cls(path, zarr.open_group(str(path), mode="r+"))
         H, W = shape
         n = len(frames)
+        band = H if band_rows is None else max(1, min(int(band_rows), H))
+        nb = -(-H // band)
         path.parent.mkdir(parents=True, exist_ok=True)
         group = zarr.open_group(str(path), mode="w-")
         # the identity last: a store whose creation was cut short has no key and is
@@ -480,18 +507,19 @@ class MapStore:
                                    dimension_names=(name,))
             a[:] = np.arange(size)
         for q in quantities:
-            a = group.create_array(q, shape=(n, H, W), chunks=(1, H, W), dtype="float32",
+            a = group.create_array(q, shape=(n, H, W), chunks=(1, band, W), dtype="float32",
                                    fill_value=np.nan, dimension_names=("time", "y", "x"))
             if coords:
                 a.attrs.update({"coordinates": " ".join(coords)})
-        group.create_array("interior", shape=(H, W), chunks=(H, W), dtype="bool",
+        group.create_array("interior", shape=(H, W), chunks=(band, W), dtype="bool",
                            fill_value=False, dimension_names=("y", "x"))
-        group.create_array("stamp", shape=(n,), chunks=(1,), dtype="int64", fill_value=0,
-                           dimension_names=("time",))
-        group.create_array("done", shape=(n,), chunks=(1,), dtype="uint8", fill_value=0,
-                           dimension_names=("time",))
-        group.attrs.update({**attrs, "gridflow": {"kind": MAPS_KIND, "version": FORMAT_VERSION,
+        group.create_array("stamp", shape=(n, nb), chunks=(1, 1), dtype="int64", fill_value=0,
+                           dimension_names=("time", "band"))
+        group.create_array("done", shape=(n, nb), chunks=(1, 1), dtype="uint8", fill_value=0,
+                           dimension_names=("time", "band"))
+        group.attrs.update({**attrs, "gridflow": {"kind": MAPS_KIND, "version": MAPS_VERSION,
                                                   "key": key, "quantities": list(quantities),
+                                                  "band_rows": band,
                                                   **attrs.get("gridflow", {})}})
         return cls(path, group)
 
@@ -507,22 +535,30 @@ class MapStore:
         return cls(path, zarr.open_group(str(path), mode="r"))
 
     def done(self) -> np.ndarray:
-        """Bool per step: written completely."""
+        """Bool per step: every band written."""
+        return self.band_done().all(axis=1)
+
+    def band_done(self) -> np.ndarray:
+        """Bool per step and band, shape ``(n, bands)``."""
         return np.asarray(self.group["done"][:], dtype=bool)
 
     def frames(self) -> np.ndarray:
         return np.asarray(self.group["time"][:])
 
     def stamps(self) -> np.ndarray:
-        """Per step the stamp of the frames it read (:meth:`Recording.stamp`)."""
+        """Per step and band the stamp of the frames it read (:meth:`Recording.stamp`),
+        shape ``(n, bands)``."""
         return np.asarray(self.group["stamp"][:])
 
-    def write_step(self, i: int, maps: dict, interior: np.ndarray, stamp: int = 0) -> None:
-        """Write step ``i``'s maps and the stamp of the frames it read, then mark it done."""
+    def write_band(self, i: int, b: int, maps: dict, interior: np.ndarray,
+                   stamp: int = 0) -> None:
+        """Write band ``b`` of step ``i`` (maps and interior of its rows, shape
+        ``(r1 - r0, W)``) and the stamp of the frames it read, then mark it done."""
+        r0, r1 = self.bands()[b]
         for q in self.quantities:
-            self.group[q][i] = np.asarray(maps[q], dtype=np.float32)
+            self.group[q][i, r0:r1] = np.asarray(maps[q], dtype=np.float32)
         # the same for every step (it depends on the image size and settings alone);
         # written by each, so that any step may come first
-        self.group["interior"][:] = np.asarray(interior, dtype=bool)
-        self.group["stamp"][i] = stamp
-        self.group["done"][i] = 1
+        self.group["interior"][r0:r1] = np.asarray(interior, dtype=bool)
+        self.group["stamp"][i, b] = stamp
+        self.group["done"][i, b] = 1

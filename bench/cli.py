@@ -175,6 +175,7 @@ def cmd_estimate(a) -> int:
                                        ("--last", a.last is not None),
                                        ("--workers", a.workers is not None),
                                        ("--memory", a.memory is not None),
+                                       ("--band-rows", a.band_rows is not None),
                                        ("--connect", a.connect is not None)) if given]
     if _series_mode(a):
         return _cmd_series(a)
@@ -213,7 +214,7 @@ def _cmd_series(a) -> int:
     report = run_series(a.input, a.output, every=1 if a.every is None else a.every,
                         model=models[0], settings=_estimator_settings(a), workers=a.workers,
                         memory=a.memory, connect=a.connect, first=a.first, last=a.last,
-                        progress=not a.no_progress)
+                        band_rows=a.band_rows, progress=not a.no_progress)
     for line in report.lines:
         print(line)
     return 0
@@ -602,7 +603,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="steps at once on this machine (default the cores, fewer where "
                         "--memory says so)")
     r.add_argument("--memory", type=float, default=None, metavar="GIB",
-                   help="memory budget for the steps at once (default half the machine's)")
+                   help="memory budget for the steps at once (default half the machine's); "
+                        "a step whose frames exceed it is cut into row bands that fit")
+    r.add_argument("--band-rows", type=_positive_int, default=None, metavar="N",
+                   help="cut each step into row bands of N rows, each a task reading only "
+                        "its rows and the filters' halo (default: whole steps, or the "
+                        "widest bands --memory allows); the maps are the same")
     r.add_argument("--connect", default=None, metavar="ADDRESS",
                    help="a dask.distributed scheduler (tcp://HOST:PORT) whose workers see "
                         "the recording and the store at the same paths")

@@ -59,6 +59,11 @@ class SeriesJob:
         The store's key (a worker's opened store is reused only for the same key).
     threads : int
         numba threads per task.
+    bands : tuple of (int, int)
+        The row bands ``(r0, r1)`` of the store, each a task per step.
+    halo : int
+        Rows either side of a band its estimate reads (the window's radius plus the
+        spatial filter's).
     """
 
     recording: str
@@ -69,6 +74,8 @@ class SeriesJob:
     settings: dict = field(default_factory=dict)
     key: str = ""
     threads: int = 1
+    bands: tuple = ()
+    halo: int = 0
 
 
 def _reach(settings: dict) -> int:
@@ -83,10 +90,22 @@ def _reach(settings: dict) -> int:
     return radius + taps // 2
 
 
-def step_memory(rec: Recording, reach: int) -> int:
-    """Bytes one step needs: its window of frames as float64 times the estimator's factor."""
+def _halo(settings: dict) -> int:
+    """Rows (and columns) either side of a pixel its estimate reads: the window's radius
+    plus the spatial filter's (as the estimator's plan)."""
+    from gridflow.estimator import EstimatorSettings
+    from gridflow.estimator.filters import get_filter_pair
+
+    s = EstimatorSettings(**settings)
+    return s.window // 2 + get_filter_pair(s.filters).radius
+
+
+def step_memory(rec: Recording, reach: int, rows: int | None = None, halo: int = 0) -> int:
+    """Bytes one task needs: its window of frames as float64 times the estimator's factor;
+    with ``rows``, a band of that many rows (and ``halo`` rows either side)."""
     T, Sy, Sx, H, W = rec.shape
-    return int((2 * reach + 1) * Sy * Sx * H * W * 8 * _MEMORY_FACTOR)
+    n = H if rows is None else min(H, rows + 2 * halo)
+    return int((2 * reach + 1) * Sy * Sx * n * W * 8 * _MEMORY_FACTOR)
 
 
 def _quantities(model: str, settings: dict, grid) -> list[str]:
@@ -114,11 +133,12 @@ def _code_key() -> str:
 
 def plan_series(recording, output, *, every: int = 1, model: str | None = None,
                 settings: dict | None = None, first: int | None = None,
-                last: int | None = None, check=None):
+                last: int | None = None, band_rows: int | None = None, check=None):
     """Open the recording, choose the steps, make (or reopen) the store.
 
-    ``check(rec, reach)``, if given, runs before the store is made (a refusal there
-    leaves nothing written).
+    ``check(rec, reach, halo)``, if given, runs before the store is made (a refusal there
+    leaves nothing written); what it returns, if not None, is the rows per band (else
+    ``band_rows``, default the whole image).
 
     Returns
     -------
@@ -134,6 +154,8 @@ def plan_series(recording, output, *, every: int = 1, model: str | None = None,
     model = model or DEFAULT_MODEL
     if not (isinstance(every, int) and every >= 1):
         raise UsageError(f"--every must be a positive number of frames, got {every!r}")
+    if band_rows is not None and not (isinstance(band_rows, int) and band_rows >= 1):
+        raise UsageError(f"--band-rows must be a positive number of rows, got {band_rows!r}")
     if "ref_frame" in settings:
         raise UsageError("--ref-frame: a time series estimates at every K-th frame "
                          "(--every); there is no one reference frame")
@@ -159,21 +181,27 @@ def plan_series(recording, output, *, every: int = 1, model: str | None = None,
                          f"last <= {hi} (the frames whose window lies in the recording)")
     frames = tuple(range(first, last + 1, every))
     quantities = _quantities(model, settings, rec.shape[1:3])
+    halo = _halo(settings)
+    if check is not None:
+        band_rows = check(rec, reach, halo) or band_rows
+    H = rec.shape[3]
+    band_rows = H if band_rows is None else min(int(band_rows), H)
+    # the layout (rows per band) is part of the key: a store chunked otherwise is another
+    # run's
     blob = json.dumps({"input": rec.identity(), "settings": settings, "model": model,
-                       "frames": frames, "code": _code_key()}, sort_keys=True)
+                       "frames": frames, "code": _code_key(), "band_rows": band_rows},
+                      sort_keys=True)
     key = hashlib.sha1(blob.encode()).hexdigest()[:16]
     attrs = {"gridflow": {"input": str(Path(recording).resolve()), "model": model,
                           "settings": settings, "every": every, "reach": reach,
                           "focal_length": rec.focal_length,
                           "camera_spacing": list(rec.camera_spacing),
                           "frame_interval": rec.frame_interval}}
-    if check is not None:
-        check(rec, reach)
     store = MapStore.create(out, key=key, frames=list(frames), shape=rec.shape[3:],
                             quantities=quantities, frame_interval=rec.frame_interval,
-                            attrs=attrs, inputs=[recording])
+                            attrs=attrs, inputs=[recording], band_rows=band_rows)
     job = SeriesJob(str(Path(recording).resolve()), str(out.resolve()), frames, reach, model,
-                    settings, key)
+                    settings, key, bands=tuple(store.bands()), halo=halo)
     return rec, store, job
 
 
@@ -186,10 +214,13 @@ def _opened(recording: str, store: str, key: str):
     return open_recording(recording), MapStore(Path(store), zarr.open_group(store, mode="r+"))
 
 
-def run_step(job: SeriesJob, i: int) -> dict:
-    """Estimate step ``i`` of ``job`` and write it into the store; returns its timing.
+def run_step(job: SeriesJob, i: int, b: int = 0) -> dict:
+    """Estimate band ``b`` of step ``i`` of ``job`` and write it into the store; returns
+    its timing.
 
-    Runs on a worker: reads only its window of frames.
+    Runs on a worker: reads only its window of frames, and of them only the band's rows
+    and ``job.halo`` rows either side, so that the band's maps are those of the whole
+    image (the estimate at a pixel reads no farther).
     """
     from gridflow.estimator import estimate_models
 
@@ -205,11 +236,21 @@ def run_step(job: SeriesJob, i: int) -> dict:
     # the stamp before the read: a frame replaced during the read makes the next run
     # redo this step rather than keep it
     stamp = rec.stamp(k - job.reach, k + job.reach + 1)
-    window = rec.read(k - job.reach, k + job.reach + 1)
+    H, W = rec.shape[3:]
+    r0, r1 = job.bands[b] if job.bands else (0, H)
+    if r1 <= job.halo or r0 >= H - job.halo:
+        # a band within the image's border: no pixel there has a whole window
+        store.write_band(i, b, {q: np.full((r1 - r0, W), np.nan) for q in store.quantities},
+                         np.zeros((r1 - r0, W), dtype=bool), stamp)
+        return {"step": i, "band": b, "frame": k, "read_s": 0.0, "estimate_s": 0.0,
+                "write_s": 0.0}
+    a0, a1 = max(0, r0 - job.halo), min(H, r1 + job.halo)
+    window = rec.read(k - job.reach, k + job.reach + 1, rows=(a0, a1))
+    cx, cy = rec.principal_point
     t1 = time.perf_counter()
     try:
         ests = estimate_models(window, rec.focal_length, rec.camera_spacing,
-                               models=(job.model,), principal_point=rec.principal_point,
+                               models=(job.model,), principal_point=(cx, cy - a0),
                                **{**job.settings, "ref_frame": job.reach})
     except Exception as exc:
         from gridflow.estimator import InputError
@@ -220,9 +261,11 @@ def run_step(job: SeriesJob, i: int) -> dict:
         raise
     est = ests[job.model]
     t2 = time.perf_counter()
-    store.write_step(i, {q: est[q] for q in store.quantities}, est.interior, stamp)
+    rows = slice(r0 - a0, r1 - a0)
+    store.write_band(i, b, {q: est[q][rows] for q in store.quantities}, est.interior[rows],
+                     stamp)
     t3 = time.perf_counter()
-    return {"step": i, "frame": k, "read_s": t1 - t0, "estimate_s": t2 - t1,
+    return {"step": i, "band": b, "frame": k, "read_s": t1 - t0, "estimate_s": t2 - t1,
             "write_s": t3 - t2}
 
 
@@ -239,32 +282,48 @@ class SeriesReport:
     lines: list = field(default_factory=list)
 
 
-def _local_concurrency(rec: Recording, reach: int, workers: int | None,
-                       memory: float | None) -> tuple[int, int, int]:
-    """(steps at once, numba threads each, budget bytes) for the local scheduler."""
+def _local_concurrency(rec: Recording, reach: int, halo: int, workers: int | None,
+                       memory: float | None,
+                       band_rows: int | None = None) -> tuple[int, int, int, int]:
+    """(tasks at once, numba threads each, budget bytes, rows per band) for the local
+    scheduler.  A step is one task when its frames fit the budget; otherwise it is cut
+    into the widest row bands that fit (``band_rows`` chooses them instead)."""
     from gridflow.volume import physical_memory
 
     cores = os.cpu_count() or 1
     have = physical_memory()
     budget = int(memory * 2**30) if memory is not None else \
         int(0.5 * have) if have else 4 * 2**30
-    need = step_memory(rec, reach)
-    if need > budget:
-        raise UsageError(f"one step needs about {need / 2**30:.1f} GiB ({2 * reach + 1} frames "
-                         f"of {rec.shape[1]}x{rec.shape[2]} views of {rec.shape[4]}x"
-                         f"{rec.shape[3]} px), more than the memory budget "
-                         f"{budget / 2**30:.1f} GiB (--memory GIB)")
     n = workers if workers is not None else cores
     if not (isinstance(n, int) and n >= 1):
         raise UsageError(f"--workers must be a positive number, got {workers!r}")
+    T, Sy, Sx, H, W = rec.shape
+    what = f"{2 * reach + 1} frames of {Sy}x{Sx} views"
+    if band_rows is None:
+        band_rows = H
+        if step_memory(rec, reach) > budget:
+            per_row = step_memory(rec, reach, 1, 0)
+            band_rows = int(budget // per_row) - 2 * halo
+            if band_rows <= halo:
+                raise UsageError(
+                    f"even a band of {halo + 1} rows (and the {halo} rows either side its "
+                    f"estimate reads) of {what} of {W} px needs about "
+                    f"{step_memory(rec, reach, halo + 1, halo) / 2**30:.2f} GiB, more than "
+                    f"the memory budget {budget / 2**30:.2f} GiB (--memory GIB)")
+    need = step_memory(rec, reach, band_rows, halo)
+    if need > budget:
+        raise UsageError(f"a band of {band_rows} rows needs about {need / 2**30:.2f} GiB ("
+                         f"{what} of {W} px, {halo} rows either side), more than the memory "
+                         f"budget {budget / 2**30:.2f} GiB (--memory GIB, --band-rows)")
     n = max(1, min(n, budget // need))
-    return n, max(1, cores // n), budget
+    return n, max(1, cores // n), budget, band_rows
 
 
 def run_series(recording, output, *, every: int = 1, model: str | None = None,
                settings: dict | None = None, workers: int | None = None,
                memory: float | None = None, connect: str | None = None,
                first: int | None = None, last: int | None = None,
+               band_rows: int | None = None,
                progress: bool = False, limit: int | None = None) -> SeriesReport:
     """Estimate a recording at every ``every``-th frame into the Zarr store ``output``.
 
@@ -289,10 +348,15 @@ def run_series(recording, output, *, every: int = 1, model: str | None = None,
         A ``dask.distributed`` scheduler address; the workers need the same paths.
     first, last : int, optional
         Frames of the first and last step (default the whole recording).
+    band_rows : int, optional
+        Rows per task: each step is cut into row bands of this many rows, each a task
+        reading only its rows and the filters' halo (default: the whole image per step,
+        or locally, where one step's frames exceed the memory budget, the widest bands
+        that fit it).  The maps are the same either way.
     progress : bool
         Messages and a progress bar (steps done, rate, time left) on stderr.
     limit : int, optional
-        Run at most this many of the remaining steps (benchmarks, tests).
+        Run at most this many of the remaining tasks (benchmarks, tests).
     """
     import dask
 
@@ -303,21 +367,27 @@ def run_series(recording, output, *, every: int = 1, model: str | None = None,
     say(f"opening {recording} ...")
     local = {}
 
-    def check(rec, reach):
+    def check(rec, reach, halo):
         if not connect:          # the memory budget, before anything is written
-            local["plan"] = _local_concurrency(rec, reach, workers, memory)
+            local["plan"] = _local_concurrency(rec, reach, halo, workers, memory, band_rows)
+            return local["plan"][3]
+        return None
 
     rec, store, job = plan_series(recording, output, every=every, model=model,
-                                  settings=settings, first=first, last=last, check=check)
-    done = store.done()
-    # a done step whose frames changed since (repaired, replaced) is done again
+                                  settings=settings, first=first, last=last,
+                                  band_rows=band_rows, check=check)
+    band_done = store.band_done()
+    nb = band_done.shape[1]
+    # a step whose frames changed since (repaired, replaced) is done again, every band
     stamps = store.stamps()
-    changed = [i for i in np.flatnonzero(done)
-               if rec.stamp(job.frames[i] - job.reach, job.frames[i] + job.reach + 1)
-               != stamps[i]]
+    changed = [i for i in np.flatnonzero(band_done.any(axis=1))
+               if (rec.stamp(job.frames[i] - job.reach, job.frames[i] + job.reach + 1)
+                   != stamps[i][band_done[i]]).any()]
     redo = set(changed)
-    todo = [i for i in range(len(job.frames)) if not done[i] or i in redo]
-    skipped = len(job.frames) - len(todo)
+    todo = [(i, b) for i in range(len(job.frames)) for b in range(nb)
+            if not band_done[i, b] or i in redo]
+    skipped = int(sum(band_done[i].all() for i in range(len(job.frames))
+                      if i not in redo))
     if limit is not None:
         todo = todo[:limit]
     T, Sy, Sx, H, W = rec.shape
@@ -333,25 +403,27 @@ def run_series(recording, output, *, every: int = 1, model: str | None = None,
         where = f"the dask cluster at {connect}"
         n = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
     else:
-        n, threads, budget = local["plan"]
+        n, threads, budget, _ = local["plan"]
         job = SeriesJob(**{**job.__dict__, "threads": threads})
-        where = (f"this machine: {n} step(s) at once, {threads} numba thread(s) each, "
+        unit = "step" if nb == 1 else "band"
+        where = (f"this machine: {n} {unit}(s) at once, {threads} numba thread(s) each, "
                  f"memory budget {budget / 2**30:.1f} GiB")
-    say(f"{len(todo)} steps (every {every} frames, {2 * job.reach + 1} frames of {Sy}x{Sx} "
-        f"views of {W}x{H} px each) on {where} ...")
+    cut = "" if nb == 1 else f", each in {nb} row bands of {job.bands[0][1]} rows"
+    say(f"{len({i for i, _ in todo})} steps (every {every} frames, {2 * job.reach + 1} "
+        f"frames of {Sy}x{Sx} views of {W}x{H} px each{cut}) on {where} ...")
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(job.frames), initial=skipped, unit="step", file=sys.stderr,
-                   dynamic_ncols=True)
+        bar = tqdm(total=len(job.frames) * nb, initial=len(job.frames) * nb - len(todo),
+                   unit="step" if nb == 1 else "band", file=sys.stderr, dynamic_ncols=True)
     t0 = time.perf_counter()
     finished = 0
     try:
         if connect:
             from dask.distributed import as_completed
 
-            futs = [client.submit(run_step, job, i, pure=False) for i in todo]
+            futs = [client.submit(run_step, job, i, b, pure=False) for i, b in todo]
             try:
                 for fut in as_completed(futs):
                     fut.result()
@@ -373,7 +445,7 @@ def run_series(recording, output, *, every: int = 1, model: str | None = None,
                     if bar is not None:
                         bar.update(1)
 
-            tasks = [dask.delayed(run_step, pure=False)(job, i) for i in todo]
+            tasks = [dask.delayed(run_step, pure=False)(job, i, b) for i, b in todo]
             with Tick():
                 dask.compute(*tasks, scheduler="threads", num_workers=n)
     finally:
@@ -386,9 +458,9 @@ def run_series(recording, output, *, every: int = 1, model: str | None = None,
         report.lines.append(f"{len(changed)} step(s) estimated again: frames they read "
                             f"changed since (steps at frames "
                             f"{[job.frames[i] for i in changed][:5]}...)")
-    rate = finished / seconds if seconds > 0 else float("nan")
+    rate = finished / nb / seconds if seconds > 0 else float("nan")
     report.lines.append(f"wrote {output}: {done_now} of {len(job.frames)} steps done "
-                        f"({finished} now in {seconds:.1f} s, {rate:.3f} steps/s; {skipped} "
+                        f"({finished / nb:g} now in {seconds:.1f} s, {rate:.3f} steps/s; {skipped} "
                         f"done by an earlier run); open with xarray.open_zarr('{output}')")
     return report
 

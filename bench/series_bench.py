@@ -2,6 +2,8 @@
 
     python -m gridflow.bench.series_bench                       # all (about 40 min on 2 cores)
     python -m gridflow.bench.series_bench --frames 60 --size 256 --compare-steps 8   # quick
+    python -m gridflow.bench.series_bench --part leaf         # the POV-Ray leaf (about 15 min)
+    python -m gridflow.bench.series_bench --part bands        # row bands (about 5 min)
 
 Every run is a fresh ``gridflow`` process (as a user runs it), so its peak resident memory
 (``ru_maxrss`` of the child: the recording's window, the estimator and the interpreter) is
@@ -21,6 +23,16 @@ its own.  Prints, in order:
 5. **Growth against truth**: ``gridflow growth --truth`` on the whole series: Q_rel per
    step (median, 90th percentile, max) and the correlation of the mean growth with the
    truth over time (the rhythm).
+6. **The POV-Ray leaf as a recording** (``--part leaf``, or with ``all``): ``gridflow
+   record-leaf`` (``--leaf-frames`` frames of 5 x 5 views of 256\ :sup:`2` px, the
+   default day of 40 frames and swinging spotlight), the whole series at the leaf
+   experiment's window (sigma 8, 33 taps), and per step the mean growth over the leaf
+   against the truth: its relative error (median, max), the correlation over time, and
+   the per-pixel Q_rel.
+7. **Row bands** (``--part bands``, or with ``all``): 8 steps of a 20-frame recording of
+   ``--size``\ :sup:`2` px, whole (default budget) and under a ``--memory`` budget of
+   a third of one step's need (so cut into row bands), one task at a time: wall and CPU
+   time, peak RSS, the bands, and the largest difference between the two stores.
 """
 
 from __future__ import annotations
@@ -87,12 +99,22 @@ def main(argv=None) -> int:
                     help="steps of the scheduler and resume comparisons (default 24)")
     ap.add_argument("--work", default=None, help="folder for the stores (default a temporary "
                     "one, removed afterwards)")
+    ap.add_argument("--part", choices=("all", "synthetic", "leaf", "bands"), default="all",
+                    help="the synthetic recording (1-5), the POV-Ray leaf (6), row bands "
+                         "(7), or all")
+    ap.add_argument("--leaf-frames", type=int, default=60,
+                    help="time instances of the leaf recording (default 60)")
     a = ap.parse_args(argv)
     work = Path(a.work or tempfile.mkdtemp(prefix="gridflow-series-"))
     work.mkdir(parents=True, exist_ok=True)
     print(f"gridflow series benchmark: {os.cpu_count()} cores; stores in {work}", flush=True)
     try:
-        _run(a, work)
+        if a.part in ("all", "synthetic"):
+            _run(a, work)
+        if a.part in ("all", "leaf"):
+            _leaf(a, work)
+        if a.part in ("all", "bands"):
+            _bands(a, work)
     finally:
         if a.work is None:
             shutil.rmtree(work, ignore_errors=True)
@@ -192,6 +214,72 @@ def _run(a, work: Path) -> None:
           f"correlation of the mean with the truth {t['mean'].corr(t['truth']):.5f}; mean "
           f"growth over the run {t['mean'].mean():.3e} (truth {t['truth'].mean():.3e}) per "
           f"frame; figures in {work / 'figs'}", flush=True)
+
+
+def _leaf(a, work: Path) -> None:
+    import pandas as pd
+
+    print("\n6. the POV-Ray leaf as a recording (gridflow record-leaf)")
+    rec = work / "leaf.zarr"
+    wall, cpu, peak, _ = _gridflow("record-leaf", "-o", rec, "--frames", a.leaf_frames,
+                                   "--cache", work / "render", "--no-progress")
+    print(f"   {rec.name}: {a.leaf_frames} frames of 5x5 views of 256x256 px "
+          f"({25 * a.leaf_frames} POV-Ray images), {_du(rec) / 2**30:.2f} GiB in Zarr, "
+          f"{wall:.1f} s wall (the parent's CPU {cpu:.1f} s; POV-Ray's own processes "
+          f"not counted), peak RSS {peak / 2**20:.0f} MiB", flush=True)
+    maps = work / "maps_leaf.zarr"
+    wall, cpu, peak, _ = _gridflow("estimate", rec, "-o", maps, "--sigma", 8, "--window", 33,
+                                   "--no-progress")
+    from gridflow.recording import MapStore
+
+    steps = int(MapStore.open(maps).done().sum())
+    print(f"   the whole series (sigma 8, 33 taps, full model, affine motion): {steps} steps "
+          f"in {wall:.1f} s wall, {cpu:.1f} s CPU, {steps / wall:.3f} steps/s, peak RSS "
+          f"{peak / 2**20:.0f} MiB", flush=True)
+    _gridflow("growth", maps, "--truth", rec, "--fig-dir", work / "figs_leaf",
+                           "--csv", work / "growth_leaf.csv")
+    t = pd.read_csv(work / "growth_leaf.csv")
+    rel = (t["mean"] / t["truth"] - 1).abs()
+    print(f"   {len(t)} steps, truth {t['truth'].min():.2e} .. {t['truth'].max():.2e} per "
+          f"frame: the mean growth over the leaf within {100 * rel.median():.1f} % of the "
+          f"truth (median over the steps), {100 * rel.max():.1f} % at worst; correlation "
+          f"with the truth over time {t['mean'].corr(t['truth']):.4f}; per pixel Q_rel "
+          f"median {t['q_rel'].median():.2f}; figures in {work / 'figs_leaf'}", flush=True)
+    print("   step  frame      mean     truth")
+    for row in t.iloc[::max(1, len(t) // 12)].itertuples():
+        print(f"   {row.step:>4}{row.frame:>7}{row.mean:>10.2e}{row.truth:>10.2e}")
+
+
+def _bands(a, work: Path) -> None:
+    from gridflow.bench.series import step_memory
+    from gridflow.recording import MapStore, open_recording
+
+    print("\n7. row bands: the same steps whole and under a budget a step does not fit")
+    rec = work / "rec_bands.zarr"
+    _gridflow("record", "-o", rec, "--frames", 20, "--height", a.size, "--width", a.size,
+              "--no-progress")
+    need = step_memory(open_recording(rec), 4)
+    budget = need / 3 / 2**30
+    span = ["--first", 4, "--last", 11, "--workers", 1, "--no-progress"]
+    print(f"   one step (9 frames of 5x5 views of {a.size}^2 px) needs about "
+          f"{need / 2**30:.2f} GiB by the planner's estimate; budget for the banded run "
+          f"{budget:.2f} GiB")
+    print(f"   {'run':<34}{'wall s':>9}{'CPU s':>9}{'peak RSS MiB':>14}  bands")
+    stores = {}
+    for label, extra in (("whole steps", []), ("row bands (--memory)", ["--memory", budget])):
+        out = work / f"bands_{len(stores)}.zarr"
+        wall, cpu, peak, _ = _gridflow("estimate", rec, "-o", out, *span, *extra)
+        st = MapStore.open(out)
+        stores[label] = _arrays(out)
+        print(f"   {label:<34}{wall:>9.1f}{cpu:>9.1f}{peak / 2**20:>14.0f}  "
+              f"{len(st.bands())} of {st.band_rows} rows", flush=True)
+    x, y = stores.values()
+    worst = max((float(np.nanmax(np.abs(x[q] - y[q]) / np.nanmax(np.abs(x[q])))), q)
+                for q in x if q not in ("done", "stamp", "interior", "time", "time_s", "x",
+                                        "y") and np.isfinite(x[q]).any())
+    print(f"   largest difference between the stores: {worst[0]:.1e} of the quantity's "
+          f"largest value ({worst[1]}); interior the same: "
+          f"{np.array_equal(x['interior'], y['interior'])}", flush=True)
 
 
 if __name__ == "__main__":

@@ -161,6 +161,63 @@ def _doc_row(case: str) -> list[str]:
     raise AssertionError(f"docs/reproduction.md: no accuracy row {case!r}")
 
 
+def _doc_brackets(case: str) -> list[tuple[int, str]]:
+    """The bracketed numbers of one row (the values before the zoom-blur correction), each
+    with the index of the value it belongs to: a bracket of k numbers holds the values of
+    the k numbers before it (since the previous bracket)."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "reproduction.md").read_text()
+    sec = text[text.index("## What the estimator achieves"):]
+    line = next(ln for ln in sec.splitlines() if ln.startswith(f"| {case} |"))
+    cell = re.sub(r"Q_\w+\([^)]*\)", "", line.split("|")[2])
+    num = r"\d+(?:\.\d+)?(?:e-?\d+)?"
+    out, index, pending = [], 0, []
+    for outside, inside in re.findall(r"([^()]*)(?:\(([^)]*)\))?", cell):
+        for _ in re.findall(num, outside):
+            pending.append(index)
+            index += 1
+        if inside:
+            values = re.findall(num, inside)
+            assert len(values) <= len(pending), (case, inside)
+            out += list(zip(pending[len(pending) - len(values):], values))
+            pending = []
+    return out
+
+
+@pytest.mark.parametrize("case", list(DOC_CASES))
+def test_accuracy_table_brackets_state_the_uncorrected_estimator(run, case):
+    """The bracketed values (before the zoom-blur correction) measured with the correction
+    off, to their printed precision as the others."""
+    cases = DOC_CASES[case]
+    for i, text in _doc_brackets(case):
+        kw, model, quantity, measure = cases[i]
+        got = run(**kw, est_zoom_correction=False)[2][model][quantity][measure]
+        assert abs(got / float(text) - 1) <= DOC_TOL, \
+            f"{case}: without the correction {model} {measure}({quantity}) measures " \
+            f"{got:.3g}, the doc says {text}"
+
+
+def test_slant_paragraph_states_what_the_estimator_does(run):
+    """The numbers of "Slant–motion coupling" (docs/reproduction.md), measured, to their
+    printed precision as above."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "reproduction.md").read_text()
+    para = re.sub(r"\s+", " ", text[text.index("**Slant–motion coupling"):])
+    para = para[:para.index("**Combining")]
+    uz = lambda **kw: run(**SLANTED, **kw)[2]["full"]["Uz"]["q_rel"]  # noqa: E731
+    for phrase, value in (
+            ("`Q_rel(U_Z)` = 0.146 with the paper's reading", uz(est_slant_correction=False)),
+            ("1.2e-4 with the correction", uz()),
+            ("2.4e-4 without it", uz(est_zoom_correction=False))):
+        assert phrase in para, phrase
+        printed = float(re.search(r"\d+(?:\.\d+)?(?:e-\d+)?", phrase).group())
+        assert abs(value / printed - 1) <= DOC_TOL, (phrase, value)
+
+
 @pytest.mark.parametrize("case", list(DOC_CASES))
 def test_accuracy_table_states_what_the_estimator_does(run, case):
     printed = _doc_row(case)
@@ -197,5 +254,11 @@ def test_systematic_effects_paragraph_states_what_the_estimator_does(run):
         assert phrase in para, phrase
         printed = float(re.search(r"\d+(?:\.\d+)?e-\d+", phrase).group())
         assert abs(value / printed - 1) <= DOC_TOL, (phrase, value)
-    assert "roundoff (7e-19 here) at `U_Z = 0`" in para
+    assert "roundoff (below 1e-15) at `U_Z = 0`" in para
     assert q({"U_Z": 0.0}, "a1") < 1e-15
+    # t_eff: the bias of Z read as U_Z t_eff / Z0 on the default sinusoid
+    from gridflow.generators import SinusoidParams
+
+    p = SinusoidParams()
+    t_eff = q({"a1": 0.5}, "Z", "q_rel") * p.Z0 / abs(p.U_Z)
+    assert "`t_eff ≈ 1.9`" in para and abs(t_eff / 1.9 - 1) <= DOC_TOL, t_eff

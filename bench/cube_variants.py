@@ -15,6 +15,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field, replace
 
+import numpy as np
 import pandas as pd
 
 from gridflow.scenes import CubeScene
@@ -51,7 +52,7 @@ VARIANTS = (
 )
 
 COLUMNS = ["variant", "options", "face", "n_pixels", "shown_right", "median_angle_deg",
-           "p90_angle_deg", "q_rel_Uz"]
+           "p90_angle_deg", "q_rel_Uz", "median_abs_Zx", "spot_model_error_ratio"]
 
 
 def run_cube_variants(cache, variants=VARIANTS, progress: bool = True,
@@ -74,7 +75,11 @@ def run_cube_variants(cache, variants=VARIANTS, progress: bool = True,
         :data:`COLUMNS`, one row per (variant, visible face): the face interior's
         ``n_pixels``, ``shown_right`` (fraction drawn within 22.5 degrees as Fig. 1 draws
         the vectors), ``median_angle_deg``, ``p90_angle_deg`` (3-D angle) and ``q_rel_Uz``
-        (Eq. 22), as :func:`~gridflow.bench.cube_experiment.cube_table` computes them.
+        (Eq. 22), ``median_abs_Zx`` (the median |Z_X| error), as
+        :func:`~gridflow.bench.cube_experiment.cube_table` computes them, and
+        ``spot_model_error_ratio``: the median model error at the spotlight's border over
+        that in the rest of the interior (observation 11 expects the full model's not to
+        rise there).
         (No times: the file is a result a rebuild must reproduce byte for byte; they are
         logged.)
     """
@@ -92,12 +97,19 @@ def run_cube_variants(cache, variants=VARIANTS, progress: bool = True,
                            temporal_radius=v.temporal_radius, models=("full",))
         table = cube_table(data, results)
         seconds = time.perf_counter() - t0
+        full = table[table.model == "full"].set_index(["face", "region"])
         sel = table[(table.region == "interior") & (table.model == "full")]
         for r in sel.itertuples(index=False):
+            ratio = np.nan
+            if (r.face, "spot_border") in full.index and (r.face, "away") in full.index:
+                ratio = (full.loc[(r.face, "spot_border"), "median_model_error"]
+                         / full.loc[(r.face, "away"), "median_model_error"])
             rows.append({"variant": v.name, "options": v.options, "face": r.face,
                          "n_pixels": r.n_pixels, "shown_right": r.shown_right,
                          "median_angle_deg": r.median_angle_deg,
-                         "p90_angle_deg": r.p90_angle_deg, "q_rel_Uz": r.q_rel_Uz})
+                         "p90_angle_deg": r.p90_angle_deg, "q_rel_Uz": r.q_rel_Uz,
+                         "median_abs_Zx": r.median_abs_Zx,
+                         "spot_model_error_ratio": ratio})
         log("    " + ", ".join(f"{r.face}: {r.shown_right:.2f} drawn right"
                                   for r in sel.itertuples()) + f" ({seconds:.0f} s)")
     return pd.DataFrame(rows, columns=COLUMNS)

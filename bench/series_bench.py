@@ -225,8 +225,8 @@ def _leaf(a, work: Path) -> None:
                                    "--cache", work / "render", "--no-progress")
     print(f"   {rec.name}: {a.leaf_frames} frames of 5x5 views of 256x256 px "
           f"({25 * a.leaf_frames} POV-Ray images), {_du(rec) / 2**30:.2f} GiB in Zarr, "
-          f"{wall:.1f} s wall (the parent's CPU {cpu:.1f} s; POV-Ray's own processes "
-          f"not counted), peak RSS {peak / 2**20:.0f} MiB", flush=True)
+          f"{wall:.1f} s wall, {cpu:.1f} s CPU, peak RSS {peak / 2**20:.0f} MiB",
+          flush=True)
     maps = work / "maps_leaf.zarr"
     wall, cpu, peak, _ = _gridflow("estimate", rec, "-o", maps, "--sigma", 8, "--window", 33,
                                    "--no-progress")

@@ -115,6 +115,26 @@ def test_cube_variants_conclusions_follow_the_numbers():
     assert "Neither the window nor the image size" not in variants_markdown(moved)
 
 
+def test_cube_window_choice_agrees_with_the_variants():
+    """The cube's window row (why sigma 8, not the paper's 16) and the left face's sign
+    paragraph quote results/cube_variants.csv and results/cube.csv, number by number."""
+    text = re.sub(r"\s+", " ", DOC.read_text())
+    v = pd.read_csv(RESULTS / "cube_variants.csv").set_index(["variant", "face"])
+    c = pd.read_csv(RESULTS / "cube.csv")
+    left = c[(c.face == "left") & (c.region == "interior") & (c.model == "full")].iloc[0]
+    pw, sh = "paper_window", "shipped"
+    for phrase in (
+            f"(full: {v.loc[(pw, 'left'), 'q_rel_Uz']:.3f} left, "
+            f"{v.loc[(pw, 'right'), 'q_rel_Uz']:.3f} right)",
+            f"the left face keeps {v.loc[(pw, 'left'), 'n_pixels']} interior pixels",
+            f"its median Z_X error grows from {v.loc[(sh, 'left'), 'median_abs_Zx']:.2g} to "
+            f"{v.loc[(pw, 'left'), 'median_abs_Zx']:.2g}",
+            f"becomes {v.loc[(pw, 'right'), 'spot_model_error_ratio']:.2g}× its value "
+            f"elsewhere ({v.loc[(sh, 'right'), 'spot_model_error_ratio']:.2g}× at σ = 8)",
+            f"median Z_X error on the left face's interior is {left.median_abs_Zx:.2g}"):
+        assert phrase.replace("(1× at", "(1.0× at") in text, phrase
+
+
 def test_a_stale_block_is_caught(claims):
     """The comparison can fail: one number changed in a regenerated block differs."""
     good = claims_markdown(claims["paper"], "results/sweep_paper.csv")

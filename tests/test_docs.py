@@ -158,6 +158,26 @@ def _agrees(text: str, x: float) -> bool:
     return f"{x:.{max(digits, 1)}g}" == f"{float(text):.{max(digits, 1)}g}"
 
 
+def test_choices_prose_agrees_with_the_sweep():
+    """The choices table's interior size and the derivative-filter paragraph's a2 numbers
+    quote results/sweep_paper.csv (two significant digits: within 1/20; the slope to its
+    printed 1.33 within 1 %)."""
+    df = read_sweep_csv(RESULTS / "sweep_paper.csv")
+    text = re.sub(r"\s+", " ", DOC.read_text())
+    n = df[(df.noise == 0)].n_pixels.unique()
+    assert len(n) == 1 and f"({n[0]:,} pixels)".replace(",", " ") in text, n
+    # a literal f = 10 px across the 192-px image
+    from gridflow.generators import SinusoidParams
+
+    field = 2 * np.degrees(np.arctan(SinusoidParams().width / 2 / 10.0))
+    assert f"would see a {field:.0f}° field" in text, field
+    q01, q1 = _q(df, "full", "a2", "a2", -0.01), _q(df, "full", "a2", "a2", -0.1)
+    assert ("measured 1.33 |a2| at `a2 = −0.01` (`Q_rel(a2)` = 0.013) and 1.2 |a2| at −0.1 "
+            "(0.12)") in text
+    assert abs(q01 / 0.01 / 1.33 - 1) < 0.01 and abs(q1 / 0.1 / 1.2 - 1) <= 0.05, (q01, q1)
+    assert abs(q01 / 0.013 - 1) <= 0.05 and abs(q1 / 0.12 - 1) <= 0.05, (q01, q1)
+
+
 def test_zoom_table_agrees_with_the_sweeps():
     """Every number of the zoom-blur table quotes a shipped sweep: the paper setup without
     and with the correction, and the gridflow setup."""

@@ -209,6 +209,19 @@ def test_zoom_table_agrees_with_the_sweeps():
                 assert f"below 0.25 % from a1 = {x} on" in numbers, (cell, numbers)
             for q, lo, hi in re.findall(r"\\\|(a2x?)\\\| ([0-9.]+)–([0-9.]+)", cell):
                 assert f"|{q}| = {lo} and {hi}" in numbers, (cell, numbers)
+            # a count k/n is the claims table's, and a cell with nothing checkable is
+            # not let through: each says either numbers or a count
+            for k in re.findall(r"\((\d+/\d+)\)", cell):
+                assert tables[col].parts[obs].startswith(f"{k} hold"), (cell, k)
+            assert re.search(r"from a1 = |\d+/\d+|\\\|a2", cell) or cell == "holds", cell
+    # the prose after the table: the paper setup's BCC breakdown with the correction
+    after = re.sub(r"\s+", " ", text[text.index("<!-- claims:paper_setup_zoom:end -->"):])
+    m = re.search(r"breaks down at \|a2\| in \(([0-9.]+), ([0-9.]+)\] and \|a2x\| "
+                  r"in \(([0-9.]+), ([0-9.]+)\] as without it", after)
+    assert m, "the zoom prose's intervals"
+    for t in tables[:2]:
+        assert f"|a2| = {m[1]} and {m[2]}" in t.numbers["9"], t.numbers["9"]
+        assert f"|a2x| = {m[3]} and {m[4]}" in t.numbers["9"], t.numbers["9"]
 
 
 def test_claims_cli_refuses_ambiguous_outputs(tmp_path, capsys):

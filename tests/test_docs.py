@@ -80,6 +80,15 @@ def test_cube_block_agrees_with_cube_csv():
     assert source, "the cube block does not name its source"
     checks = observation11(table) + observation12(table)
     assert text == cube_markdown(table, checks, source.group(1))
+    # the source it names is the shipped scene and window (not only whatever the doc says)
+    from gridflow.bench.cli import build_parser
+    from gridflow.scenes import CubeScene
+
+    d = build_parser().parse_args(["cube"])                  # gridflow cube's defaults
+    assert source.group(1) == (f"the scene `cube-{CubeScene().key()}`, sigma {d.sigma:g}, "
+                               f"{d.window} taps")
+    v = pd.read_csv(RESULTS / "cube_variants.csv")
+    assert v[v.variant == "shipped"].options.isna().all()      # the variants' row agrees
 
 
 def test_cube_variants_block_agrees_with_its_csv():

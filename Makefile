@@ -10,13 +10,14 @@ PY     := $(BIN)/python
 STAMP  := $(VENV)/.installed
 
 .DEFAULT_GOAL := help
-.PHONY: help env test figures reproduce baseline bench mutants clean distclean povray peers-env
+.PHONY: help env test figures reproduce baseline bench mutants clean distclean povray peers-env readings
 
 help:
 	@echo "make figures   reproduce the paper's figures and result tables (results/)"
 	@echo "make reproduce regenerate every result from scratch"
 	@echo "make test      run the test suite"
 	@echo "make baseline  regenerate the stored error curves deliberately"
+	@echo "make readings  the paper's observations under other readings (4 sweeps, ~12 min)"
 	@echo "make bench     run the throughput benchmark"
 	@echo "make mutants   run the hand-written mutants against the tests (about 5 min)"
 	@echo "make peers-env set up depthy and plenpy (pinned) for gridflow peers --hci"
@@ -164,6 +165,18 @@ results/claims_paper_setup.csv: $(SETUP_CSV) bench/claims.py bench/markdown.py |
 # the paper's quantitative statements, gridflow's number for each under both setups
 results/paper_terms.csv: $(SWEEP_CSV) $(SETUP_CSV) bench/claims.py bench/markdown.py | $(STAMP)
 	$(BIN)/gridflow claims $(SWEEP_CSV) $(SETUP_CSV) --write-terms $@ --write-doc docs/reproduction.md
+
+# Other readings of the paper's unstated parameters (bench/readings.py): four more sweeps
+# (into work/sweeps/, not committed: megabytes each), then their verdicts and numbers
+# beside the paper setup's in results/readings*.csv and docs/reproduction.md.
+READINGS     := paper_setup_offset1 paper_setup_matched3 paper_setup_ivw paper_offset1
+READING_CSVS := $(READINGS:%=work/sweeps/sweep_%.csv)
+work/sweeps/sweep_%.csv: bench/sweeps/%.toml $(NUMERICS) | $(STAMP)
+	$(BIN)/gridflow sweep $< -o $@
+readings: results/readings.csv
+results/readings.csv results/readings_verdicts.csv &: $(SETUP_CSV) $(READING_CSVS) bench/readings.py bench/claims.py | $(STAMP)
+	$(BIN)/gridflow readings $(SETUP_CSV) $(READING_CSVS) --csv-verdicts results/readings_verdicts.csv \
+	  --csv-terms results/readings.csv --write-doc docs/reproduction.md
 
 # Regenerate the stored error curves on purpose (the tests compare fresh runs with them).
 bench: $(STAMP) $(KERNELS)

@@ -416,6 +416,43 @@ def cmd_claims(a) -> int:
     return 0
 
 
+def cmd_readings(a) -> int:
+    from gridflow.errors import UsageError
+    from gridflow.io import atomic_write, check_output
+
+    from .markdown import rewrite_block
+    from .readings import READINGS, readings_markdown, readings_table
+    from .sweep import read_sweep_csv
+
+    for path, what in ((a.csv_verdicts, "--csv-verdicts"), (a.csv_terms, "--csv-terms")):
+        check_output(path, suffixes=".csv", inputs=a.csv, what=what)
+    if a.write_doc:
+        check_output(a.write_doc, suffixes=".md", inputs=a.csv, what="--write-doc")
+    sweeps = {}
+    for path in a.csv:
+        df = read_sweep_csv(path)
+        names = df["sweep"].unique() if "sweep" in df else []
+        if len(names) != 1 or names[0] not in READINGS:
+            raise UsageError(f"{path}: expected the sweep of one reading ("
+                             f"{', '.join(READINGS)}), got {', '.join(map(str, names)) or 'none'}")
+        sweeps[names[0]] = df
+    verdicts, terms = readings_table(sweeps)
+    with atomic_write(a.csv_verdicts, "w") as fh:
+        verdicts.to_csv(fh, index=False)
+    with atomic_write(a.csv_terms, "w") as fh:
+        terms.to_csv(fh, index=False)
+    print(verdicts.to_string(index=False, max_colwidth=100))
+    print(f"wrote {a.csv_verdicts}, {a.csv_terms}")
+    if a.write_doc:
+        import pandas as pd
+
+        # from the files as written, so that the doc and the CSVs agree digit for digit
+        rewrite_block(a.write_doc, "readings", readings_markdown(
+            pd.read_csv(a.csv_verdicts), pd.read_csv(a.csv_terms, keep_default_na=False)))
+        print(f"wrote {a.write_doc}")
+    return 0
+
+
 def cmd_cube(a) -> int:
     from gridflow.io import check_output
     from gridflow.scenes import CubeScene
@@ -704,6 +741,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="results/figures", help="folder (default results/figures)")
     p.add_argument("--suffix", default="", help="appended to the figure names (fig3SUFFIX.png)")
     p.set_defaults(func=cmd_figures)
+
+    p = sub.add_parser("readings", help="the paper's observations under other readings of "
+                                        "its unstated parameters, side by side")
+    p.add_argument("csv", nargs="+", help="sweep CSVs of the readings (bench/readings.py)")
+    p.add_argument("--csv-verdicts", default="results/readings_verdicts.csv",
+                   help="verdict per reading and observation")
+    p.add_argument("--csv-terms", default="results/readings.csv",
+                   help="the paper's statements, gridflow's number under each reading")
+    p.add_argument("--write-doc", help="markdown file whose readings section to rewrite")
+    p.set_defaults(func=cmd_readings)
 
     p = sub.add_parser("cube", help="render the cube (POV-Ray), estimate, Fig. 1 and cube.csv")
     p.add_argument("--size", type=_positive_int, default=256, help="image width = height (default 256)")

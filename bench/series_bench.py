@@ -24,13 +24,13 @@ its own.  Prints, in order:
    step (median, 90th percentile, max) and the correlation of the mean growth with the
    truth over time (the rhythm).
 6. **The POV-Ray leaf as a recording** (``--part leaf``, or with ``all``): ``gridflow
-   record-leaf`` (``--leaf-frames`` frames of 5 x 5 views of 256\ :sup:`2` px, the
+   record-leaf`` (``--leaf-frames`` frames of 5 x 5 views of 256\\ :sup:`2` px, the
    default day of 40 frames and swinging spotlight), the whole series at the leaf
    experiment's window (sigma 8, 33 taps), and per step the mean growth over the leaf
    against the truth: its relative error (median, max), the correlation over time, and
    the per-pixel Q_rel.
 7. **Row bands** (``--part bands``, or with ``all``): 8 steps of a 20-frame recording of
-   ``--size``\ :sup:`2` px, whole (default budget) and under a ``--memory`` budget of
+   ``--size``\\ :sup:`2` px, whole (default budget) and under a ``--memory`` budget of
    a third of one step's need (so cut into row bands), one task at a time: wall and CPU
    time, peak RSS, the bands, and the largest difference between the two stores.
 """

@@ -144,6 +144,67 @@ def test_cube_window_choice_agrees_with_the_variants():
         assert phrase.replace("(1× at", "(1.0× at") in text, phrase
 
 
+def _readings():
+    v = pd.read_csv(RESULTS / "readings_verdicts.csv")
+    t = pd.read_csv(RESULTS / "readings.csv", keep_default_na=False)
+    return v, t
+
+
+def test_readings_block_agrees_with_its_csvs():
+    from gridflow.bench.readings import readings_markdown
+
+    assert block("readings") == readings_markdown(*_readings())
+
+
+def test_readings_paper_column_is_the_shipped_paper_setup():
+    """The readings' `paper` setup column was made by the same checks from the same sweep as
+    the paper-terms table (results/paper_terms.csv, regenerated from the committed sweep
+    by the tests above): statement by statement the same number and verdict."""
+    _, t = _readings()
+    terms = pd.read_csv(RESULTS / "paper_terms.csv", keep_default_na=False)
+    assert len(t) == len(terms)
+    assert (t["statement"] == terms["statement"]).all()
+    assert (t["paper_setup"] == terms["paper"]).all()
+    assert (t["paper_setup verdict"] == terms["paper verdict"]).all()
+
+
+def test_readings_prose_follows_the_verdicts():
+    """What the text says of each reading, checked against results/readings*.csv."""
+    v, t = _readings()
+    verdict = v.set_index(["reading", "id"]).verdict
+    term = t.set_index("statement")
+    text = re.sub(r"\s+", " ", DOC.read_text())
+    # offset 1 under gridflow: BCC breaks down earlier in a2 and a2x than with offset 0
+    gf = pd.read_csv(RESULTS / "paper_terms.csv", keep_default_na=False).set_index("statement")
+    assert "with offset 1 BCC breaks down earlier in `a2` and `a2x`" in text
+
+    def upper(cell):
+        return float(re.search(r"\(([0-9.]+), ([0-9.]+)\]", cell).group(2))
+
+    for s in ("BCC breaks down at |a2| ≈ 0.1", "BCC breaks down at |a2x| ≈ 0.02"):
+        assert upper(term.loc[s, "paper_offset1"]) < upper(gf.loc[s, "gridflow"]), s
+    # inverse-variance weights: observations 10 and 7 "do not" hold
+    assert "read as gridflow's inverse-variance weights, they do not" in text
+    assert verdict["paper_setup", 7] == verdict["paper_setup", 10] == "holds"
+    assert verdict["paper_setup_ivw", 7] != "holds" and verdict["paper_setup_ivw", 10] != "holds"
+    # offset 1 under paper: 1 holds, most others not
+    assert "so observation 1 holds; but most of the others then fail" in text
+    others = [verdict["paper_setup_offset1", i] for i in range(2, 11)]
+    assert verdict["paper_setup_offset1", 1] == "holds"
+    assert sum(x != "holds" for x in others) > len(others) / 2
+    # 3-tap filters: the floor holds, beyond 1 not moderate, obs. 7's larger a1, 9 partly
+    m3 = "paper_setup_matched3 verdict"
+    assert term.loc["Q_rel(a1) well below 0.5 % for a1 < 1", m3] == "holds"
+    assert term.loc["beyond a1 = 1 rising moderately", m3] == "does not hold"
+    assert term.loc["HF, full: only weakly for larger a1", m3] == "does not hold"
+    assert verdict["paper_setup_matched3", 9] == "partly"
+    # none makes 1-10 hold together; the paper setup has the most that hold
+    assert "None of the three readings" in text
+    holds = {r: int((v[v.reading == r].verdict == "holds").sum()) for r in v.reading.unique()}
+    for r in ("paper_setup_offset1", "paper_setup_matched3", "paper_setup_ivw"):
+        assert holds[r] < 10 and holds[r] <= holds["paper_setup"], (r, holds)
+
+
 def test_a_stale_block_is_caught(claims):
     """The comparison can fail: one number changed in a regenerated block differs."""
     good = claims_markdown(claims["paper"], "results/sweep_paper.csv")

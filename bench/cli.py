@@ -257,11 +257,13 @@ def cmd_growth(a) -> int:
     check_output(a.fig_dir, suffixes=None, inputs=[a.maps], what="--fig-dir")
     table = growth_table(a.maps, a.truth)
     files = draw_growth(a.maps, table, a.fig_dir, times=a.times)
-    pd_cols = ["frame", "mean", "p10", "p90"] + (["truth", "q_rel"] if a.truth else [])
+    pd_cols = ["frame", "median", "mean", "p10", "p90"] + (["truth", "q_rel"] if a.truth
+                                                           else [])
     print(table[pd_cols].to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     if a.truth:
         print(f"Q_rel(growth) over the steps: median {table['q_rel'].median():.3g}, max "
-              f"{table['q_rel'].max():.3g}; correlation of the mean with the truth "
+              f"{table['q_rel'].max():.3g}; correlation with the truth: of the median "
+              f"{table['median'].corr(table['truth']):.4f}, of the mean "
               f"{table['mean'].corr(table['truth']):.4f}")
     if a.csv:
         from gridflow.io import atomic_write

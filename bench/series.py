@@ -36,8 +36,16 @@ DEFAULT_MODEL = "full"
 # a recording is made for growth: the affine motion model (growth and rotation maps)
 DEFAULT_MOTION = "affine"
 # bytes the estimator holds per byte of its input window, measured (bench/README.md,
-# *Long recordings*): the window as float64 plus the band's signals and tensor
+# *Long recordings*): the window as float64 plus the band's signals and tensor.  A whole
+# step: 3 (the estimator bounds its own bands' tensor, so a large window costs less than
+# in proportion).  A row band: its signals over all its rows at once cost more per byte,
+# 6.5, on top of the process itself (interpreter, libraries, numba's kernels), counted once
+# per task; measured at 512^2 px, 5 x 5 views, 9 frames, one task at a time: 16-row bands
+# 669 MiB (predicted 705), 102-row bands 993 MiB (1196), a whole step 1086 MiB (1575);
+# a tiny step 212 MiB.
 _MEMORY_FACTOR = 3.0
+_BAND_FACTOR = 6.5
+_PROCESS = 0.22 * 2**30
 
 
 @dataclass(frozen=True)
@@ -101,11 +109,15 @@ def _halo(settings: dict) -> int:
 
 
 def step_memory(rec: Recording, reach: int, rows: int | None = None, halo: int = 0) -> int:
-    """Bytes one task needs: its window of frames as float64 times the estimator's factor;
-    with ``rows``, a band of that many rows (and ``halo`` rows either side)."""
+    """Bytes one task needs: the process plus, for a whole step, its window of frames as
+    float64 times the estimator's factor, or with ``rows`` (fewer than the image's), the
+    window of a band of that many rows and ``halo`` rows either side times the band factor
+    (the constants above, measured)."""
     T, Sy, Sx, H, W = rec.shape
-    n = H if rows is None else min(H, rows + 2 * halo)
-    return int((2 * reach + 1) * Sy * Sx * n * W * 8 * _MEMORY_FACTOR)
+    per_row = (2 * reach + 1) * Sy * Sx * W * 8
+    if rows is None or rows >= H:
+        return int(_PROCESS + per_row * H * _MEMORY_FACTOR)
+    return int(_PROCESS + per_row * min(H, rows + 2 * halo) * _BAND_FACTOR)
 
 
 def _quantities(model: str, settings: dict, grid) -> list[str]:
@@ -302,8 +314,8 @@ def _local_concurrency(rec: Recording, reach: int, halo: int, workers: int | Non
     if band_rows is None:
         band_rows = H
         if step_memory(rec, reach) > budget:
-            per_row = step_memory(rec, reach, 1, 0)
-            band_rows = int(budget // per_row) - 2 * halo
+            per_row = (2 * reach + 1) * Sy * Sx * W * 8 * _BAND_FACTOR
+            band_rows = int((budget - _PROCESS) // per_row) - 2 * halo
             if band_rows <= halo:
                 raise UsageError(
                     f"even a band of {halo + 1} rows (and the {halo} rows either side its "
@@ -619,8 +631,10 @@ def growth_table(maps, truth=None, *, quantity: str = "growth"):
 
 
 def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -> list[Path]:
-    """The growth maps at chosen frames (a strip on one colour scale) and the mean growth
-    over the interior against time, with its 10-90 % spread and the truth where known.
+    """The growth maps at chosen frames (a strip on one colour scale) and the growth over
+    the interior against time: its median (robust to the few pixels where the estimate
+    breaks down, which move the mean), the mean, the 10-90 % spread and the truth where
+    known.
 
     Returns the files written (``growth_maps.png``, ``growth_series.png``)."""
     import matplotlib
@@ -674,13 +688,16 @@ def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -
     fig, ax = plt.subplots(figsize=(7, 3.6), constrained_layout=True)
     ax.fill_between(x, table["p10"] * per_frame, table["p90"] * per_frame, alpha=0.3,
                     color="tab:green", label="10-90 % of the pixels")
-    ax.plot(x, table["mean"] * per_frame, color="tab:green", lw=1.5, label="mean, estimated")
+    ax.plot(x, table["median"] * per_frame, color="tab:green", lw=1.5,
+            label="median, estimated")
+    ax.plot(x, table["mean"] * per_frame, color="tab:green", lw=0.8, ls=":",
+            label="mean, estimated")
     if "truth" in table:
         ax.plot(x, table["truth"] * per_frame, "k--", lw=1.0, label="truth")
     ax.set_xlabel("time, h" if fi else "frame")
     ax.set_ylabel("growth, % area per frame")
     ax.legend(fontsize=8, loc="best")
-    ax.set_title("Mean growth over the interior", fontsize=10)
+    ax.set_title("Growth over the interior", fontsize=10)
     out2 = fig_dir / "growth_series.png"
     with atomic_write(out2) as fh:
         fig.savefig(fh, format="png", dpi=110)

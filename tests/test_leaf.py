@@ -110,10 +110,11 @@ def test_leaf_recording_images_match_the_truth_per_frame(leaf_recording):
 
 
 def test_leaf_recording_growth_series_against_its_truth(leaf_recording, tmp_path):
-    """gridflow estimate on the leaf recording, then each step's mean growth over the leaf
-    (where the truth is given) against the truth of its frame.
+    """gridflow estimate on the leaf recording, then each step's median growth over the leaf
+    (where the truth is given; the median, as gridflow growth reports it, since a few
+    pixels where the estimate breaks down move the mean) against the truth of its frame.
 
-    Measured: within 2-12 % at every step.  Asked: within 20 %, the single-volume leaf's
+    Measured: within 2-7.5 % at every step (the mean: 2-12 %).  Asked: within 20 %, the single-volume leaf's
     measured deviation at this size and window (15 %, median growth, test above) plus the
     bias of a rate that changes inside the temporal window (1/2 g'' times the window's
     variance in time, at most 4 frames^2: 2 g0 m w^2 / g_min = 2 % with the default day of
@@ -127,8 +128,8 @@ def test_leaf_recording_growth_series_against_its_truth(leaf_recording, tmp_path
     table = growth_table(out, leaf_recording)
     assert list(table.frame) == [4, 5, 6, 7]
     assert (table.n_pixels > 3000).all()
-    rel = (table["mean"] / table["truth"] - 1).abs()
-    assert rel.max() < 0.20, table[["frame", "mean", "truth"]]
+    rel = (table["median"] / table["truth"] - 1).abs()
+    assert rel.max() < 0.20, table[["frame", "median", "truth"]]
 
 
 def test_record_leaf_refuses_an_output_it_cannot_write(tmp_path, capsys):

@@ -760,7 +760,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=_positive_int, default=9, help="frames (default 9)")
     p.add_argument("--cache", default="work/cube", help="render cache (default work/cube)")
     p.add_argument("--sigma", type=float, default=8.0,
-                   help="window sigma, px (default 8: the 55-px left face of a 256-px image "
+                   help="window sigma, px (default 8: the 67-px left face of a 256-px image "
                         "needs a smaller window than the sinusoid's 16)")
     p.add_argument("--window", type=int, default=33, help="window taps (default 33)")
     p.add_argument("--temporal-radius", type=_positive_int, default=None, metavar="R",

@@ -428,7 +428,7 @@ def run_cube_experiment(scene: CubeScene, cache, *, csv, fig_dir, doc=None,
     doc : path, optional
         A markdown file whose ``cube`` block is rewritten (``docs/reproduction.md``).
     sigma, window
-        The estimator's window (the 55-px left face of a 256-px image needs a smaller one
+        The estimator's window (the 67-px left face of a 256-px image needs a smaller one
         than the sinusoid's 16).
     temporal_radius : int, optional
         Omega over frames -R..R (default: the estimator's).

@@ -37,8 +37,9 @@ class CubeScene:
 
     Defaults: a 256 x 256 image with f = 650 px puts the 100 mm cube at 420 mm across most
     of the image; 1 px is 0.65 mm at that depth.  Camera spacing 0.4 mm gives a disparity
-    of 0.55-0.7 px between neighbouring cameras and motion of 2 mm/frame an image motion
-    below 0.6 px/frame everywhere in the image (sub-pixel, as the estimator needs).  The
+    of 0.59-0.74 px between neighbouring cameras and motion of 2 mm/frame an image motion
+    of at most 0.68 px/frame on the cube (sub-pixel, as the estimator needs; both from
+    :func:`cube_truth`, checked in ``tests/test_docs.py``).  The
     noise texture's features (``texture_scale`` 4 mm) are ~6 px wide: textured enough for
     the 65-tap window, smooth enough to render without anti-aliasing.
     """

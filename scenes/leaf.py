@@ -47,7 +47,7 @@ class LeafScene:
     frame).
 
     Defaults: the leaf is 150 mm long and 80 mm wide at 420 mm, seen by a 5 x 5 grid
-    0.4 mm apart with f = 650 px (as the cube: 0.55-0.7 px of disparity between
+    0.4 mm apart with f = 650 px (as the cube: 0.59-0.74 px of disparity between
     neighbouring cameras); it grows at 2e-3 per frame (about 6 % per hour at a frame every
     two minutes, a fast leaf) and approaches the cameras at 1 mm per frame.
     """

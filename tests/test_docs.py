@@ -248,6 +248,80 @@ def test_choices_prose_agrees_with_the_sweep():
     assert abs(q01 / 0.013 - 1) <= 0.05 and abs(q1 / 0.12 - 1) <= 0.05, (q01, q1)
 
 
+def test_geometry_numbers_agree_with_the_scenes():
+    """The numbers the choice tables derive from the geometry (the sinusoid's defaults and
+    the cube's truth), computed here and compared at their printed precision."""
+    from gridflow.generators import SinusoidParams
+    from gridflow.scenes import CubeScene, cube_truth
+
+    text = re.sub(r"\s+", " ", DOC.read_text())
+    p = SinusoidParams()
+    f, Z0, t = p.f, p.Z0, (p.frames - 1) / 2
+    X = (p.width / 2) * Z0 / f                       # world X at the image's edge
+    window = 65
+    inner = p.width - 2 * (window // 2 + 2)          # 65 taps, matched5's radius 2
+    for phrase, got, printed in (
+            ("at 33 px from the centre", 10.0 / 0.3, 33),
+            ("a pixel spans 0.1 world units at `Z0 = 100`", Z0 / f, 0.1),
+            ("`U_X = 0.05` is 0.5 px/frame", 0.05 * f / Z0, 0.5),
+            ("of ±0.31 across the image", 0.002 * X * t * t, 0.31),
+            ("reaches 15 at the image's edge", 0.1 * X * t * t, 15),
+            ("leave a 124 × 124 interior", inner, 124),
+            ("1.5 periods of the 80-px y-wavelength", inner / p.wavelength_y, 1.5),
+            ("Disparity `f ds / Z0` = 0.5 px", f * p.spacing[0] / Z0, 0.5),
+            ("2 px across the grid", f * p.spacing[0] / Z0 * (p.grid[1] - 1), 2),
+            ("— 15 % for the slanted test plane", 0.05 * 0.3 / 0.1, 0.15)):
+        assert phrase in text, phrase
+        assert abs(got / printed - 1) <= 0.05, (phrase, got)
+    s = CubeScene()
+    tr = cube_truth(s)
+    Z = tr["Z"]
+    on = np.isfinite(Z)
+    disp = s.f * s.spacing[0] / Z[on]
+    H, W = Z.shape
+    x, y = np.meshgrid(np.arange(W) - (W - 1) / 2, np.arange(H) - (H - 1) / 2)
+    motion = np.hypot((s.f * tr["Ux"] - x * tr["Uz"]) / Z, (s.f * tr["Uy"] - y * tr["Uz"]) / Z)
+    left = (tr["face"] == 1).sum(axis=1).max()
+    for phrase in (f"1 px ≈ {s.center_z / s.f:.2f} mm there",
+                   f"disparity {disp.min():.2f}–{disp.max():.2f} px between neighbours",
+                   f"image motion ≤ {np.nanmax(motion):.2f} px/frame on the cube",
+                   f"the steep left face is at most {left} px wide at 256 px"):
+        assert phrase in text, phrase
+
+
+def test_setups_table_agrees_with_the_setups():
+    """The two setups' table states what bench/setups.py and the library defaults set."""
+    from gridflow.bench.setups import SETUPS
+    from gridflow.estimator import EstimatorSettings
+    from gridflow.generators import SinusoidParams
+
+    text = DOC.read_text()
+    sec = text[text.index("| what | `gridflow` | `paper` |"):]
+    rows = {}
+    for line in sec.splitlines()[2:]:
+        if not line.startswith("|"):
+            break
+        cells = [c.strip() for c in re.split(r"(?<!\\)\|", line)[1:-1]]
+        rows[cells[0]] = cells[1:]
+    g, pb = SinusoidParams(), SinusoidParams(**SETUPS["paper"].base)
+    ge, pe = EstimatorSettings(), EstimatorSettings(**SETUPS["paper"].estimator)
+    assert rows["texture"][0].startswith(f"{g.texture} of the two sinusoids, offset "
+                                         f"{g.offset:g}") and rows["texture"][1] == pb.texture
+    assert rows["amplitude"][0].startswith(f"{g.amplitude:g} ")
+    assert rows["amplitude"][1].startswith(f"{pb.amplitude:g}:")
+    d = [q.f * q.spacing[0] / q.Z0 for q in (g, pb)]
+    assert rows["disparity between neighbours"][0] == f"{d[0]:g} px"
+    assert rows["disparity between neighbours"][1] == f"{d[1]:g} px (`spacing` {pb.spacing[0]:g})"
+    assert rows["image"] == [f"{q.height} × {q.width}" for q in (g, pb)]
+    radius = [2 if ge.temporal_radius is None else ge.temporal_radius, pe.temporal_radius]
+    assert rows["Ω in time"] == [f"±{radius[0]} frames", f"±{radius[1]} frame"]
+    assert ge.combine == "inverse_variance" and "inverse variance" in rows[
+        "combination of the two estimates"][0]
+    assert f'`combine = "{pe.combine}"`' in rows["combination of the two estimates"][1]
+    assert SETUPS["paper"].brightness_reference == "global"
+    assert rows["brightness errors against"][1].startswith("the global `a`")
+
+
 def test_zoom_table_agrees_with_the_sweeps():
     """Every number of the zoom-blur table quotes a shipped sweep: the paper setup without
     and with the correction, and the gridflow setup."""

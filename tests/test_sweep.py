@@ -53,7 +53,13 @@ def test_repository_specs_are_valid():
 
 
 def test_shipped_specs_are_found_by_name(tmp_path, monkeypatch):
-    assert set(shipped_specs()) == {"growth", "paper", "paper_setup", "paper_setup_zoom", "smoke"}
+    from pathlib import Path
+
+    folder = Path(__file__).resolve().parents[1] / "bench" / "sweeps"
+    assert set(shipped_specs()) == {p.stem for p in folder.glob("*.toml")}
+    assert {"growth", "paper", "paper_setup", "paper_setup_zoom", "smoke"} <= set(shipped_specs())
+    for name in shipped_specs():                    # each found by name, and valid
+        assert SweepSpec.from_toml(name) == SweepSpec.from_toml(folder / f"{name}.toml")
     assert SweepSpec.from_toml("paper") == SweepSpec.from_toml("bench/sweeps/paper.toml")
     # a file of that name in the working folder wins over the shipped spec
     monkeypatch.chdir(tmp_path)

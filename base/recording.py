@@ -141,9 +141,12 @@ class Recording:
             raise RecordingError(f"{self.path}: rows {r0}..{r1 - 1} requested of 0..{H - 1}")
         return self._reader.read(start, stop, r0, r1)
 
-    def truth(self, frame: int) -> dict[str, np.ndarray]:
-        """Ground truth at the reference camera and ``frame``: name to ``(H, W)``."""
-        return self._reader.truth(frame) if self.truth_names else {}
+    def truth(self, frame: int, names=None) -> dict[str, np.ndarray]:
+        """Ground truth at the reference camera and ``frame``: name to ``(H, W)`` float64,
+        for ``names`` (default all of :attr:`truth_names`)."""
+        if not self.truth_names:
+            return {}
+        return self._reader.truth(frame, self.truth_names if names is None else tuple(names))
 
     def identity(self) -> dict:
         """What identifies the recording for a resume key: its path, kind, shape, geometry
@@ -268,9 +271,9 @@ class _ZarrReader:
                                  "(NaN or inf: a frame never written, or damaged)")
         return out
 
-    def truth(self, frame: int) -> dict:
+    def truth(self, frame: int, names: tuple) -> dict:
         g = self.group["truth"]
-        return {n: np.asarray(g[n][frame], dtype=np.float64) for n, _ in g.arrays()}
+        return {n: np.asarray(g[n][frame], dtype=np.float64) for n in names}
 
     def identity(self) -> dict:
         return {"kind": "zarr", "dtype": str(self.volume.dtype)}

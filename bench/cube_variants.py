@@ -133,8 +133,7 @@ def variants_markdown(df: pd.DataFrame, source: str = "results/cube_variants.csv
         return f"{100 * x:.0f} %"
 
     def pair(name, col, fmt):
-        return f"{fmt(d[name, 'left'].__getattribute__(col))} / " \
-               f"{fmt(d[name, 'right'].__getattribute__(col))}"
+        return f"{fmt(getattr(d[name, 'left'], col))} / {fmt(getattr(d[name, 'right'], col))}"
 
     base = "shipped"
     lines = [

@@ -98,16 +98,6 @@ def _reach(settings: dict) -> int:
     return radius + taps // 2
 
 
-def _halo(settings: dict) -> int:
-    """Rows (and columns) either side of a pixel its estimate reads: the window's radius
-    plus the spatial filter's (as the estimator's plan)."""
-    from gridflow.estimator import EstimatorSettings
-    from gridflow.estimator.filters import get_filter_pair
-
-    s = EstimatorSettings(**settings)
-    return s.window // 2 + get_filter_pair(s.filters).radius
-
-
 def step_memory(rec: Recording, reach: int, rows: int | None = None, halo: int = 0) -> int:
     """Bytes one task needs: the process plus, for a whole step, its window of frames as
     float64 times the estimator's factor, or with ``rows`` (fewer than the image's), the
@@ -158,7 +148,7 @@ def plan_series(recording, output, *, every: int = 1, model: str | None = None,
     store : MapStore
     job : SeriesJob
     """
-    from gridflow.estimator import EstimatorSettings
+    from gridflow.estimator import EstimatorSettings, window_halo
     from gridflow.io import check_output
 
     settings = {k: v for k, v in (settings or {}).items() if v is not None}
@@ -171,7 +161,7 @@ def plan_series(recording, output, *, every: int = 1, model: str | None = None,
     if "ref_frame" in settings:
         raise UsageError("--ref-frame: a time series estimates at every K-th frame "
                          "(--every); there is no one reference frame")
-    EstimatorSettings(**settings)              # bad settings fail before anything opens
+    est_settings = EstimatorSettings(**settings)   # bad settings fail before anything opens
     out = Path(output)
     if out.suffix.lower() != ".zarr":
         raise UsageError(f"-o {output}: a recording's time series is written to a Zarr "
@@ -193,7 +183,7 @@ def plan_series(recording, output, *, every: int = 1, model: str | None = None,
                          f"last <= {hi} (the frames whose window lies in the recording)")
     frames = tuple(range(first, last + 1, every))
     quantities = _quantities(model, settings, rec.shape[1:3])
-    halo = _halo(settings)
+    halo = window_halo(est_settings)
     if check is not None:
         band_rows = check(rec, reach, halo) or band_rows
     H = rec.shape[3]
@@ -249,7 +239,7 @@ def run_step(job: SeriesJob, i: int, b: int = 0) -> dict:
     # redo this step rather than keep it
     stamp = rec.stamp(k - job.reach, k + job.reach + 1)
     H, W = rec.shape[3:]
-    r0, r1 = job.bands[b] if job.bands else (0, H)
+    r0, r1 = job.bands[b]
     if r1 <= job.halo or r0 >= H - job.halo:
         # a band within the image's border: no pixel there has a whole window
         store.write_band(i, b, {q: np.full((r1 - r0, W), np.nan) for q in store.quantities},
@@ -611,7 +601,7 @@ def growth_table(maps, truth=None, *, quantity: str = "growth"):
         if rec is not None:
             # where the truth is given (a scene's truth is NaN off the object and near its
             # edge): the statistics and Q_rel over the same pixels
-            t = np.asarray(rec.truth(int(frames[i]))[quantity], dtype=np.float64)
+            t = rec.truth(int(frames[i]), names=(quantity,))[quantity]
             mask = interior & np.isfinite(t)
         v = m[mask & np.isfinite(m)]
         row = {"step": int(i), "frame": int(frames[i]),

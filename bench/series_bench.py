@@ -284,8 +284,7 @@ def _bands(a, work: Path) -> None:
               f"{len(st.bands())} of {st.band_rows} rows", flush=True)
     x, y = stores.values()
     worst = max((float(np.nanmax(np.abs(x[q] - y[q]) / np.nanmax(np.abs(x[q])))), q)
-                for q in x if q not in ("done", "stamp", "interior", "time", "time_s", "x",
-                                        "y") and np.isfinite(x[q]).any())
+                for q in st.quantities if np.isfinite(x[q]).any())
     print(f"   largest difference between the stores: {worst[0]:.1e} of the quantity's "
           f"largest value ({worst[1]}); interior the same: "
           f"{np.array_equal(x['interior'], y['interior'])}", flush=True)

@@ -20,9 +20,9 @@ from .result import Estimate
 from .settings import COMBINE, DEFAULTS, METHODS, EstimatorSettings, InputError
 
 __all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
-           "MODELS", "MOTIONS", "METHODS", "COMBINE", "FILTER_NAMES", "DEFAULTS"]
+           "window_halo", "MODELS", "MOTIONS", "METHODS", "COMBINE", "FILTER_NAMES", "DEFAULTS"]
 
-_FROM_DRIVER = {"estimate", "estimate_models"}
+_FROM_DRIVER = {"estimate", "estimate_models", "window_halo"}
 
 
 def __getattr__(name):

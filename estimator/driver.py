@@ -24,7 +24,8 @@ from .settings import EstimatorSettings, InputError
 from .signals import SignalPlan, signal_plan
 from .tensor import gaussian_moment_kernels, zoom_corrected
 
-__all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models"]
+__all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
+           "window_halo"]
 
 # Pixels per call of the disentangling (whole rows): 8192 doubles are 64 KB, below
 # glibc's threshold for giving each array fresh pages of its own.
@@ -118,6 +119,13 @@ def _check_volume(volume, backend) -> tuple[np.ndarray, float]:
     if volume.size == 0:
         raise InputError(f"volume is empty (shape {volume.shape})")
     return volume, amax
+
+
+def window_halo(s: EstimatorSettings) -> int:
+    """Pixels either side of a pixel that its estimate reads: the window's radius plus the
+    spatial derivative filter's.  The maps' border of NaN is this wide, and a row band
+    estimated with this many rows either side gives the whole image's maps there."""
+    return s.window // 2 + get_filter_pair(s.filters).radius
 
 
 def _unit_scale(amax: float) -> float:
@@ -220,7 +228,7 @@ def _plan(volume, focal_length, camera_spacing, principal_point, s: EstimatorSet
         time, k_ref, R_t = None, 0, 0
     else:
         time, R_t = _time_window(s, T, k_ref, models)
-    halo = s.window // 2 + spatial.radius
+    halo = window_halo(s)
     if H <= 2 * halo or W <= 2 * halo:
         raise InputError(f"image {H}x{W} too small for a {s.window}-tap window and "
                          f"{spatial.taps}-tap filters: need more than {2 * halo} pixels "

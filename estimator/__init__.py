@@ -20,9 +20,10 @@ from .result import Estimate
 from .settings import COMBINE, DEFAULTS, METHODS, EstimatorSettings, InputError
 
 __all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
-           "window_halo", "MODELS", "MOTIONS", "METHODS", "COMBINE", "FILTER_NAMES", "DEFAULTS"]
+           "window_halo", "temporal_reach", "MODELS", "MOTIONS", "METHODS", "COMBINE",
+           "FILTER_NAMES", "DEFAULTS"]
 
-_FROM_DRIVER = {"estimate", "estimate_models", "window_halo"}
+_FROM_DRIVER = {"estimate", "estimate_models", "window_halo", "temporal_reach"}
 
 
 def __getattr__(name):

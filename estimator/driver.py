@@ -25,7 +25,7 @@ from .signals import SignalPlan, signal_plan
 from .tensor import gaussian_moment_kernels, zoom_corrected
 
 __all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
-           "window_halo"]
+           "window_halo", "temporal_reach"]
 
 # Pixels per call of the disentangling (whole rows): 8192 doubles are 64 KB, below
 # glibc's threshold for giving each array fresh pages of its own.
@@ -126,6 +126,17 @@ def window_halo(s: EstimatorSettings) -> int:
     spatial derivative filter's.  The maps' border of NaN is this wide, and a row band
     estimated with this many rows either side gives the whole image's maps there."""
     return s.window // 2 + get_filter_pair(s.filters).radius
+
+
+def temporal_reach(s: EstimatorSettings) -> int:
+    """Frames either side of the reference frame that an estimate reads where the volume
+    has them: the temporal radius of Omega (``s.temporal_radius``, default 2) plus the
+    temporal derivative filter's radius.  A window of ``2 * reach + 1`` frames around a
+    frame gives the same estimate there as the whole sequence; with fewer frames the
+    driver narrows the window or falls back to the 3-tap filters (:func:`_time_window`).
+    """
+    radius = 2 if s.temporal_radius is None else int(s.temporal_radius)
+    return radius + get_filter_pair(s.filters).radius
 
 
 def _unit_scale(amax: float) -> float:

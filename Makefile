@@ -28,7 +28,7 @@ help:
 # A module added or removed needs the tree made again: MODULES lists them, and the list
 # is rewritten (re-triggering the install) only when it changes.
 MODULES     := $(sort $(wildcard base/*.py estimator/*.py generators/*.py scenes/*.py \
-                 bench/*.py bench/sweeps/*.toml))
+                 pipeline/*.py bench/*.py bench/sweeps/*.toml))
 MODULE_LIST := build/.modules
 $(shell mkdir -p build && echo "$(MODULES)" | cmp -s - $(MODULE_LIST) || echo "$(MODULES)" > $(MODULE_LIST))
 
@@ -56,7 +56,7 @@ env: $(STAMP) $(KERNELS)
 # what a sweep's rows depend on (the modules its resume key fingerprints); the CLI is not
 # among them: it only parses and prints
 NUMERICS  := $(wildcard estimator/*.py generators/*.py) base/volume.py base/io.py \
-             base/errors.py bench/metrics.py bench/spec.py bench/sweep.py bench/executors.py \
+             base/errors.py base/metrics.py bench/spec.py bench/sweep.py pipeline/executors.py \
              bench/setups.py
 SWEEP_CSV := results/sweep_paper.csv
 SETUP_CSV := results/sweep_paper_setup.csv
@@ -72,7 +72,7 @@ OUTPUTS   := $(FIGS) results/claims.csv results/claims_paper_setup.csv results/c
              results/paper_terms.csv results/claims_paper_setup_zoom.csv \
              results/cube_variants.csv
 CUBE_SRC  := $(wildcard estimator/*.py scenes/*.py) base/loader.py base/errors.py \
-             bench/cube_experiment.py bench/figures.py bench/metrics.py bench/markdown.py
+             bench/cube_experiment.py bench/figures.py base/metrics.py bench/markdown.py
 
 figures: $(STAMP) $(KERNELS)
 	@t0=$$(date +%s); $(MAKE) --no-print-directory $(OUTPUTS) && \

@@ -37,6 +37,8 @@ __all__ = ["HCIError", "is_hci_scene", "load_hci", "read_pfm", "write_pfm", "rea
            "write_hci", "depth_from_disparity", "disparity_from_depth"]
 
 _VIEW = re.compile(r"^input_Cam(\d{3})\.png$")
+#: the files of a scene that its estimate reads (views, parameters, ground truth)
+HCI_FILES = re.compile(r"^(input_Cam\d{3}\.png|parameters\.cfg|gt_(disp|depth)_lowres\.pfm)$")
 
 
 class HCIError(GridflowError):
@@ -193,7 +195,7 @@ def load_hci(folder, views: int | None = None) -> GridVolume:
         folder has them; ``meta["hci"]`` the geometry from ``parameters.cfg`` (if any)
         and the grid used.
     """
-    from .loader import LoaderError, _read_image
+    from .loader import LoaderError, read_image
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -236,7 +238,7 @@ def load_hci(folder, views: int | None = None) -> GridVolume:
     first = first_kind = None
     try:
         for k, p in enumerate(chosen):
-            img, kind = _read_image(p)
+            img, kind = read_image(p)
             if volume is None:
                 # the memory check after the first view, before the others are decoded
                 mem = physical_memory()

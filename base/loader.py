@@ -34,7 +34,7 @@ import numpy as np
 from .errors import GridflowError
 from .volume import GridVolume, physical_memory
 
-__all__ = ["load_folder", "LoaderError"]
+__all__ = ["load_folder", "open_folder", "read_image", "LoaderError"]
 
 _IMAGE_EXT = {".png", ".tif", ".tiff"}
 
@@ -160,7 +160,9 @@ def _read_manifest(folder: Path) -> dict:
     return m
 
 
-def _read_image(path: Path) -> tuple[np.ndarray, str]:
+def read_image(path: Path) -> tuple[np.ndarray, str]:
+    """One image as float64 ``(H, W)`` luminance (integer images scaled to [0, 1] by their
+    bit depth, RGB to linear luminance) and its pixel type as stored."""
     import imageio.v3 as iio
 
     try:
@@ -195,41 +197,92 @@ def _read_image(path: Path) -> tuple[np.ndarray, str]:
     return out, kind
 
 
-def load_folder(folder) -> GridVolume:
-    """Read a camera-grid folder into a volume ``(T, Sy, Sx, H, W)``.
+def open_folder(folder):
+    """Open a camera-grid folder without decoding an image beyond the first (the
+    ``folder`` backend of :func:`gridflow.sources.open_source`): every key of
+    ``grid.json`` is checked, and the manifest against the folder.
 
-    Every key of ``grid.json`` is checked before any image is read, and the manifest is
-    checked against the folder before the volume is allocated.
+    Returns
+    -------
+    gridflow.sources.Source
+        Frames read on demand (:meth:`~gridflow.sources.Source.read`, each image checked
+        against the first: size and pixel type); the manifest's ``truth`` maps belong to
+        its reference frame (default the centre frame).
 
     Raises
     ------
     LoaderError
         Missing manifest or keys, unknown keys, values of the wrong type or range, a
         pattern that names one file twice or a path outside the folder, missing or extra
-        images, files that are not regular files, mixed sizes or types, a volume larger
-        than this machine's memory, unreadable files or truth maps.
+        images, files that are not regular files, an unreadable first image.
     """
-    m, expected, paths = index_folder(folder)
+    from .volume import CameraGeometry, Source
+
     folder = Path(folder)
+    m, expected, paths = index_folder(folder)
     (Sy, Sx), T = m["_grid"], m["_frames"]
-    vol = None
-    first_kind = first_name = None
+    by_frame = [[None] * (Sy * Sx) for _ in range(T)]
     for name, (t, i, j) in expected.items():
-        img, kind = _read_image(paths[name])
-        if vol is None:
-            _check_memory(folder, (T, Sy, Sx) + img.shape)
-            vol = np.empty((T, Sy, Sx) + img.shape)
-            first_kind, first_name = kind, name
-        check_like(folder / name, img, kind, first_name, vol.shape[3:], first_kind)
-        vol[t, i, j] = img
-    H, W = vol.shape[3:]
+        by_frame[t][i * Sx + j] = paths[name]
+    first = by_frame[0][0]
+    img, kind = read_image(first)       # the size and type every image must have
+    H, W = img.shape
     pp = m["_pp"]
     pp = ((W - 1) / 2.0, (H - 1) / 2.0) if pp is None else (pp[0], pp[1])
-    truth = {q: read_truth(q, p, (H, W)) for q, p in m["_truth"].items()}
-    meta = {"folder": str(folder), "pixel_type": first_kind,
-            "ref_frame": m.get("reference_frame"), "source": m.get("source"),
-            "frame_interval": m.get("frame_interval")}
-    return GridVolume(vol, m["_f"], (m["_ds"][0], m["_ds"][1]), pp, truth, meta)
+    ref = m.get("reference_frame")
+    geometry = CameraGeometry(m["_f"], (m["_ds"][0], m["_ds"][1]), pp,
+                              m.get("frame_interval"), m.get("units") or "world units")
+    reader = FolderReader(folder, m, by_frame, first, (H, W), kind)
+    return Source(folder, (T, Sy, Sx, H, W), geometry, "folder", tuple(sorted(m["_truth"])),
+                  ref if ref is not None else (T - 1) // 2, ref,
+                  {"folder": str(folder), "pixel_type": kind, "source": m.get("source")},
+                  reader)
+
+
+class FolderReader:
+    """Reads a camera-grid folder's frames (or row bands of them) on demand."""
+
+    def __init__(self, path, m, by_frame, first, shape, kind):
+        self.path, self.m, self.by_frame = path, m, by_frame
+        self.first, self.image_shape, self.kind = first, shape, kind
+
+    def read(self, start: int, stop: int, r0: int, r1: int) -> np.ndarray:
+        Sy, Sx = self.m["_grid"]
+        if start == 0 and stop == self.m["_frames"]:
+            _check_memory(self.path, (stop - start, Sy, Sx, r1 - r0, self.image_shape[1]))
+        out = np.empty((stop - start, Sy, Sx, r1 - r0, self.image_shape[1]))
+        for t in range(start, stop):
+            for k, p in enumerate(self.by_frame[t]):
+                if not p.is_file():
+                    raise LoaderError(f"{p}: frame {t}, camera ({k // Sx}, {k % Sx}) is "
+                                      "missing or not a regular file")
+                img, kind = read_image(p)
+                check_like(p, img, kind, self.first.name, self.image_shape, self.kind)
+                out[t - start, k // Sx, k % Sx] = img[r0:r1]
+        return out
+
+    def truth(self, frame: int, names: tuple) -> dict:
+        return {q: read_truth(q, self.m["_truth"][q], self.image_shape) for q in names}
+
+    def identity(self) -> dict:
+        return {"kind": "folder", "pattern": self.m["pattern"], "pixel_type": self.kind}
+
+    def files(self, start: int, stop: int) -> list[Path]:
+        return [p for t in range(start, stop) for p in self.by_frame[t]]
+
+
+def load_folder(folder) -> GridVolume:
+    """Read a camera-grid folder into a volume ``(T, Sy, Sx, H, W)`` (:func:`open_folder`,
+    then every frame; refused before any image beyond the first is decoded when the
+    volume would not fit this machine's memory).
+
+    Raises
+    ------
+    LoaderError
+        As :func:`open_folder`; also mixed sizes or types, a volume larger than this
+        machine's memory, unreadable files or truth maps.
+    """
+    return open_folder(folder).load()
 
 
 def check_like(path: Path, img: np.ndarray, kind: str, first_name: str, shape: tuple,

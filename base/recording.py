@@ -14,9 +14,10 @@ A **recording** is a camera grid imaged at many time instances (frames).  Two fo
   with ``focal_length`` (px), ``camera_spacing`` ``[ds_x, ds_y]``, ``principal_point``
   ``[cx, cy]`` and ``frame_interval`` (s, or null) in the group's attributes.
 
-:func:`open_recording` reads neither form's images: :meth:`Recording.read` decodes the
-frames one estimate needs, and checks each image against the first (size, pixel type,
-finite values), naming the file or frame that differs.
+Both are opened through :func:`gridflow.sources.open_source` (this module's backend:
+:func:`open_recording_store`) without reading an image: :meth:`gridflow.sources.Source.
+read` decodes the frames one estimate needs and checks them (size, pixel type, finite
+values), naming the file or frame that differs.
 
 A **map series** (:class:`MapStore`) is the estimate at every K-th frame: a Zarr group
 readable with ``xarray.open_zarr``::
@@ -44,14 +45,13 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .errors import GridflowError
+from .volume import CameraGeometry, Source, SourceError
 
-__all__ = ["Recording", "open_recording", "write_recording", "is_recording_store",
+__all__ = ["open_recording_store", "write_recording", "is_recording_store",
            "MapStore", "RecordingError", "RECORDING_KIND", "MAPS_KIND"]
 
 RECORDING_KIND = "recording"
@@ -60,7 +60,7 @@ FORMAT_VERSION = 1
 MAPS_VERSION = 2             # 2: row bands (stamp and done per step and band)
 
 
-class RecordingError(GridflowError):
+class RecordingError(SourceError):
     """A recording or map store that cannot be used; the message names the path."""
 
 
@@ -94,110 +94,31 @@ def is_recording_store(path) -> bool:
     return bool(g) and g.get("kind") == RECORDING_KIND
 
 
-@dataclass
-class Recording:
-    """A camera-grid recording read lazily.
-
-    Attributes
-    ----------
-    path : Path
-    shape : tuple of int
-        ``(T, Sy, Sx, H, W)``.
-    focal_length : float
-        Pixels.
-    camera_spacing : tuple of float
-        ``(ds_x, ds_y)``, world units.
-    principal_point : tuple of float
-        ``(cx, cy)``, pixels.
-    frame_interval : float or None
-        Seconds between frames, where the recording states it.
-    truth_names : tuple of str
-        Quantities with ground truth per frame (:meth:`truth`).
-    """
-
-    path: Path
-    shape: tuple
-    focal_length: float
-    camera_spacing: tuple
-    principal_point: tuple
-    frame_interval: float | None
-    truth_names: tuple = ()
-    _reader: object = field(default=None, repr=False)
-
-    @property
-    def frames(self) -> int:
-        return self.shape[0]
-
-    def read(self, start: int, stop: int, rows: tuple | None = None) -> np.ndarray:
-        """Frames ``start .. stop - 1`` as float64, shape ``(stop - start, Sy, Sx, H, W)``;
-        with ``rows = (r0, r1)`` only image rows ``r0 .. r1 - 1`` (a row band: its memory
-        is the band's, not the frame's)."""
-        if not 0 <= start < stop <= self.frames:
-            raise RecordingError(f"{self.path}: frames {start}..{stop - 1} requested of "
-                                 f"0..{self.frames - 1}")
-        H = self.shape[3]
-        r0, r1 = (0, H) if rows is None else (int(rows[0]), int(rows[1]))
-        if not 0 <= r0 < r1 <= H:
-            raise RecordingError(f"{self.path}: rows {r0}..{r1 - 1} requested of 0..{H - 1}")
-        return self._reader.read(start, stop, r0, r1)
-
-    def truth(self, frame: int, names=None) -> dict[str, np.ndarray]:
-        """Ground truth at the reference camera and ``frame``: name to ``(H, W)`` float64,
-        for ``names`` (default all of :attr:`truth_names`)."""
-        if not self.truth_names:
-            return {}
-        return self._reader.truth(frame, self.truth_names if names is None else tuple(names))
-
-    def identity(self) -> dict:
-        """What identifies the recording for a resume key: its path, kind, shape, geometry
-        and pixel type; not its content (frames may be added or repaired: each step keeps
-        a :meth:`stamp` of the frames it read instead)."""
-        return {"path": str(Path(self.path).resolve()), "shape": list(self.shape),
-                "focal_length": self.focal_length,
-                "camera_spacing": list(self.camera_spacing),
-                "principal_point": list(self.principal_point),
-                "frame_interval": self.frame_interval, **self._reader.identity()}
-
-    def stamp(self, start: int, stop: int) -> int:
-        """A 63-bit stamp of frames ``start .. stop - 1`` as stored: their files' names,
-        sizes and modification times (reading every byte is not an option).  A step whose
-        frames' stamp changed since it was estimated is estimated again."""
-        import hashlib
-
-        h = hashlib.sha1()
-        for p in self._reader.files(start, stop):
-            try:
-                st = p.stat()
-                h.update(f"{p.name}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
-            except FileNotFoundError:
-                h.update(f"{p.name}\0missing\n".encode())
-        return int.from_bytes(h.digest()[:8], "little") >> 1
-
-
-def open_recording(path) -> Recording:
-    """Open a recording (a Zarr recording store or a camera-grid image folder) without
-    reading its images.
+def open_recording_store(path) -> Source:
+    """Open a recording store written by :func:`write_recording` without reading a frame
+    (the ``zarr`` backend of :func:`gridflow.sources.open_source`).
 
     Raises
     ------
     RecordingError
-        ``path`` is neither, or its metadata is malformed (the message names the file).
+        A Zarr store that is not a gridflow recording, of another format version, or
+        with malformed metadata (the message names the file or array).
     """
     path = Path(path)
-    if not path.is_dir():
-        raise RecordingError(f"{path}: not a folder (a recording is a Zarr store or a "
-                             "camera-grid folder with grid.json)")
     g = _gridflow_attrs(path)
-    if g is not None:
-        if g.get("kind") != RECORDING_KIND:
-            raise RecordingError(f"{path}: a Zarr store that is not a gridflow recording "
-                                 f"(attribute gridflow.kind = {g.get('kind')!r}, expected "
-                                 f"{RECORDING_KIND!r})")
-        return _ZarrReader.open(path)
-    if (path / "grid.json").exists():
-        return _FolderReader.open(path)
-    raise RecordingError(f"{path}: neither a gridflow recording store (zarr.json) nor a "
-                         "camera-grid folder (grid.json)")
+    if g is None:
+        raise RecordingError(f"{path}: not a readable Zarr v3 group (zarr.json)")
+    if g.get("kind") != RECORDING_KIND:
+        raise RecordingError(f"{path}: a Zarr store that is not a gridflow recording "
+                             f"(attribute gridflow.kind = {g.get('kind')!r}, expected "
+                             f"{RECORDING_KIND!r})")
+    # a store written by this code has version 1; one without a version is a store made
+    # by the user's own code (README), read as version 1
+    version = g.get("version", FORMAT_VERSION)
+    if version != FORMAT_VERSION:
+        raise RecordingError(f"{path}/zarr.json: a recording of format {version!r}; this "
+                             f"gridflow reads format {FORMAT_VERSION}")
+    return _ZarrReader.open(path)
 
 
 class _ZarrReader:
@@ -206,7 +127,7 @@ class _ZarrReader:
         self.volume = group["volume"]
 
     @classmethod
-    def open(cls, path: Path) -> Recording:
+    def open(cls, path: Path) -> Source:
         zarr = _zarr()
         try:
             group = zarr.open_group(str(path), mode="r")
@@ -245,7 +166,9 @@ class _ZarrReader:
                 if group["truth"][n].shape != (T, H, W):
                     raise RecordingError(f"{path}/truth/{n}: shape {group['truth'][n].shape}, "
                                          f"expected {(T, H, W)}")
-        return Recording(path, vol.shape, f, ds, pp, fi, names, cls(path, group))
+        return Source(path, vol.shape, CameraGeometry(f, ds, pp, fi), "zarr", names, None,
+                      None, {"source": (a.get("gridflow") or {}).get("source")},
+                      cls(path, group))
 
     def read(self, start: int, stop: int, r0: int, r1: int) -> np.ndarray:
         T, Sy, Sx, H, W = self.volume.shape
@@ -297,60 +220,6 @@ def _numbers_scalar(a: dict, key: str, path: Path) -> tuple:
     return (float(v),)
 
 
-class _FolderReader:
-    def __init__(self, path, m, by_frame, first, shape, kind):
-        self.path, self.m, self.by_frame = path, m, by_frame
-        self.first, self.image_shape, self.kind = first, shape, kind
-
-    @classmethod
-    def open(cls, path: Path) -> Recording:
-        from .loader import LoaderError, _read_image, index_folder
-
-        try:
-            m, expected, paths = index_folder(path)
-            (Sy, Sx), T = m["_grid"], m["_frames"]
-            by_frame = [[None] * (Sy * Sx) for _ in range(T)]
-            for name, (t, i, j) in expected.items():
-                by_frame[t][i * Sx + j] = paths[name]
-            first = by_frame[0][0]
-            img, kind = _read_image(first)       # the size and type every image must have
-        except LoaderError as exc:
-            raise RecordingError(str(exc)) from None
-        H, W = img.shape
-        pp = m["_pp"]
-        pp = ((W - 1) / 2.0, (H - 1) / 2.0) if pp is None else (pp[0], pp[1])
-        if m["_truth"]:
-            raise RecordingError(f"{path / 'grid.json'}: 'truth' maps of one frame do not "
-                                 "describe a recording; leave the key out")
-        reader = cls(path, m, by_frame, first, (H, W), kind)
-        return Recording(path, (T, Sy, Sx, H, W), m["_f"], (m["_ds"][0], m["_ds"][1]), pp,
-                         m.get("frame_interval"), (), reader)
-
-    def read(self, start: int, stop: int, r0: int, r1: int) -> np.ndarray:
-        from .loader import LoaderError, _read_image, check_like
-
-        Sy, Sx = self.m["_grid"]
-        out = np.empty((stop - start, Sy, Sx, r1 - r0, self.image_shape[1]))
-        try:
-            for t in range(start, stop):
-                for k, p in enumerate(self.by_frame[t]):
-                    if not p.is_file():
-                        raise LoaderError(f"{p}: frame {t}, camera ({k // Sx}, {k % Sx}) is "
-                                          "missing or not a regular file")
-                    img, kind = _read_image(p)
-                    check_like(p, img, kind, self.first.name, self.image_shape, self.kind)
-                    out[t - start, k // Sx, k % Sx] = img[r0:r1]
-        except LoaderError as exc:
-            raise RecordingError(str(exc)) from None
-        return out
-
-    def identity(self) -> dict:
-        return {"kind": "folder", "pattern": self.m["pattern"], "pixel_type": self.kind}
-
-    def files(self, start: int, stop: int) -> list[Path]:
-        return [p for t in range(start, stop) for p in self.by_frame[t]]
-
-
 def write_recording(path, frames, *, shape: tuple, focal_length: float,
                     camera_spacing: tuple, principal_point: tuple | None = None,
                     frame_interval: float | None = None, truth_names: tuple = (),
@@ -367,7 +236,7 @@ def write_recording(path, frames, *, shape: tuple, focal_length: float,
     shape : tuple
         ``(T, Sy, Sx, H, W)``.
     focal_length, camera_spacing, principal_point, frame_interval
-        As :class:`Recording`.
+        As :class:`gridflow.volume.CameraGeometry`.
     truth_names : tuple of str
         The truth maps each frame carries.
     source : dict, optional
@@ -538,7 +407,16 @@ class MapStore:
         return cls(path, group)
 
     @classmethod
-    def open(cls, path) -> "MapStore":
+    def reopen(cls, path, key: str) -> "MapStore":
+        """Open the store made for the run ``key`` for writing (a worker's task)."""
+        store = cls.open(path, mode="r+")
+        if store.key != key:
+            raise RecordingError(f"{path}: made anew by another run while this one ran "
+                                 f"(key {store.key}, expected {key})")
+        return store
+
+    @classmethod
+    def open(cls, path, mode: str = "r") -> "MapStore":
         """Open an existing map store for reading."""
         zarr = _zarr()
         path = Path(path)
@@ -550,7 +428,7 @@ class MapStore:
             raise RecordingError(f"{path}: a map series of format {g.get('version')}, written "
                                  f"by another gridflow; this one reads format {MAPS_VERSION} "
                                  "(estimate it again into a new store)")
-        return cls(path, zarr.open_group(str(path), mode="r"))
+        return cls(path, zarr.open_group(str(path), mode=mode))
 
     def done(self) -> np.ndarray:
         """Bool per step: every band written."""
@@ -564,7 +442,7 @@ class MapStore:
         return np.asarray(self.group["time"][:])
 
     def stamps(self) -> np.ndarray:
-        """Per step and band the stamp of the frames it read (:meth:`Recording.stamp`),
+        """Per step and band the stamp of the frames it read (:meth:`gridflow.sources.Source.stamp`),
         shape ``(n, bands)``."""
         return np.asarray(self.group["stamp"][:])
 

@@ -1,12 +1,18 @@
-"""The in-memory form of a camera-grid sequence, shared by generators, loaders and CLI."""
+"""A camera-grid sequence: in memory (:class:`GridVolume`), read lazily from a file or
+folder (:class:`Source`, opened by :func:`gridflow.sources.open_source`), and the camera
+geometry both carry (:class:`CameraGeometry`)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-__all__ = ["GridVolume", "physical_memory"]
+from .errors import FileFormatError
+
+__all__ = ["GridVolume", "CameraGeometry", "Source", "SourceError", "source_from_volume",
+           "physical_memory"]
 
 
 def physical_memory() -> int | None:
@@ -18,6 +24,47 @@ def physical_memory() -> int | None:
         return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):
         return None
+
+
+@dataclass(frozen=True)
+class CameraGeometry:
+    """How a camera grid images the scene: what every estimate needs beside the pixels.
+
+    Attributes
+    ----------
+    focal_length : float
+        Pixels.
+    camera_spacing : tuple of float
+        ``(ds_x, ds_y)``, world units (:attr:`units`) between neighbouring cameras.
+    principal_point : tuple of float
+        ``(cx, cy)``, pixels (column, row) relative to the image's top-left pixel.
+    frame_interval : float or None
+        Seconds between frames, where the data states it.
+    units : str
+        The unit of length of ``camera_spacing`` and so of the estimated ``Z`` and ``U``.
+    """
+
+    focal_length: float
+    camera_spacing: tuple
+    principal_point: tuple
+    frame_interval: float | None = None
+    units: str = "world units"
+
+    def for_rows(self, r0: int) -> "CameraGeometry":
+        """The geometry of the image rows from ``r0`` on (a row band): the principal
+        point moves up by ``r0`` rows."""
+        cx, cy = self.principal_point
+        return CameraGeometry(self.focal_length, self.camera_spacing, (cx, cy - r0),
+                              self.frame_interval, self.units)
+
+    def as_dict(self) -> dict:
+        """JSON-ready: the attributes with units in their names."""
+        return {"focal_length_px": float(self.focal_length),
+                "camera_spacing": [float(v) for v in self.camera_spacing],
+                "principal_point_px": [float(v) for v in self.principal_point],
+                "frame_interval_s": (None if self.frame_interval is None
+                                     else float(self.frame_interval)),
+                "units": self.units}
 
 
 @dataclass
@@ -46,3 +93,162 @@ class GridVolume:
     principal_point: tuple[float, float]
     truth: dict[str, np.ndarray] = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
+
+    @property
+    def geometry(self) -> CameraGeometry:
+        """The camera geometry as one object (:class:`CameraGeometry`)."""
+        return CameraGeometry(float(self.focal_length), tuple(self.camera_spacing),
+                              tuple(self.principal_point), self.meta.get("frame_interval"),
+                              self.meta.get("units") or "world units")
+
+
+class SourceError(FileFormatError):
+    """An input that no backend opens, or that its backend refuses; names the path."""
+
+
+@dataclass
+class Source:
+    """A camera-grid sequence read lazily, whatever its format.
+
+    Attributes
+    ----------
+    path : Path
+    shape : tuple of int
+        ``(T, Sy, Sx, H, W)``.
+    geometry : CameraGeometry
+        Focal length (px), camera spacing, principal point (px), frame interval (s).
+    kind : str
+        The backend that opened it (:data:`BACKENDS`).
+    truth_names : tuple of str
+        Quantities with ground truth (:meth:`truth`).
+    truth_frame : int or None
+        The one frame the truth belongs to (a volume's reference frame), or None where
+        every frame has its own (a recording).
+    ref_frame : int or None
+        The reference frame the source states (a folder's ``reference_frame``), if any.
+    meta : dict
+        Format-specific provenance (an HCI scene's geometry, a generator's parameters).
+    """
+
+    path: Path
+    shape: tuple
+    geometry: CameraGeometry
+    kind: str
+    truth_names: tuple = ()
+    truth_frame: int | None = None
+    ref_frame: int | None = None
+    meta: dict = field(default_factory=dict)
+    _reader: object = field(default=None, repr=False)
+
+    # the geometry's parts, read often enough to have names of their own
+    @property
+    def focal_length(self) -> float:
+        return self.geometry.focal_length
+
+    @property
+    def camera_spacing(self) -> tuple:
+        return self.geometry.camera_spacing
+
+    @property
+    def principal_point(self) -> tuple:
+        return self.geometry.principal_point
+
+    @property
+    def frame_interval(self) -> float | None:
+        return self.geometry.frame_interval
+
+    @property
+    def frames(self) -> int:
+        return self.shape[0]
+
+    def read(self, start: int, stop: int, rows: tuple | None = None) -> np.ndarray:
+        """Frames ``start .. stop - 1`` as float64, shape ``(stop - start, Sy, Sx, H, W)``;
+        with ``rows = (r0, r1)`` only image rows ``r0 .. r1 - 1`` (a row band: its memory
+        is the band's, not the frame's, where the format allows)."""
+        if not 0 <= start < stop <= self.frames:
+            raise SourceError(f"{self.path}: frames {start}..{stop - 1} requested of "
+                              f"0..{self.frames - 1}")
+        H = self.shape[3]
+        r0, r1 = (0, H) if rows is None else (int(rows[0]), int(rows[1]))
+        if not 0 <= r0 < r1 <= H:
+            raise SourceError(f"{self.path}: rows {r0}..{r1 - 1} requested of 0..{H - 1}")
+        return self._reader.read(start, stop, r0, r1)
+
+    def truth(self, frame: int, names=None) -> dict[str, np.ndarray]:
+        """Ground truth at the reference camera and ``frame``: name to ``(H, W)`` float64,
+        for ``names`` (default all of :attr:`truth_names`); empty where the source has
+        none for that frame."""
+        if not self.truth_names or (self.truth_frame is not None
+                                    and frame != self.truth_frame):
+            return {}
+        names = self.truth_names if names is None else tuple(names)
+        return self._reader.truth(frame, names)
+
+    def identity(self) -> dict:
+        """What identifies the source for a resume key: its path, kind, shape, geometry
+        and pixel type; not its content (frames may be added or repaired: each step keeps
+        a :meth:`stamp` of the frames it read instead)."""
+        g = self.geometry
+        return {"path": str(Path(self.path).resolve()), "shape": list(self.shape),
+                "focal_length": g.focal_length, "camera_spacing": list(g.camera_spacing),
+                "principal_point": list(g.principal_point),
+                "frame_interval": g.frame_interval, **self._reader.identity()}
+
+    def stamp(self, start: int, stop: int) -> int:
+        """A 63-bit stamp of frames ``start .. stop - 1`` as stored: their files' names,
+        sizes and modification times (reading every byte is not an option).  A step whose
+        frames' stamp changed since it was estimated is estimated again."""
+        import hashlib
+
+        h = hashlib.sha1()
+        for p in self._reader.files(start, stop):
+            try:
+                st = p.stat()
+                h.update(f"{p.name}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+            except FileNotFoundError:
+                h.update(f"{p.name}\0missing\n".encode())
+        return int.from_bytes(h.digest()[:8], "little") >> 1
+
+    def load(self) -> GridVolume:
+        """The whole sequence in memory, with the truth of :attr:`truth_frame` (or of the
+        reference frame)."""
+        vol = self.read(0, self.frames)
+        k = self.truth_frame if self.truth_frame is not None else (
+            self.ref_frame if self.ref_frame is not None else (self.frames - 1) // 2)
+        meta = {**self.meta, "ref_frame": self.ref_frame,
+                "frame_interval": self.geometry.frame_interval}
+        return GridVolume(vol, self.geometry.focal_length, self.geometry.camera_spacing,
+                          self.geometry.principal_point, self.truth(k), meta)
+
+
+class ArrayReader:
+    """The reader of a source already in memory (a volume file, an HCI scene): ``files``
+    are the files it was read from, for :meth:`Source.stamp`."""
+
+    def __init__(self, volume: np.ndarray, truth: dict, files: list, identity: dict):
+        self.volume, self._truth, self._files, self._identity = volume, truth, files, identity
+
+    def read(self, start: int, stop: int, r0: int, r1: int) -> np.ndarray:
+        return np.asarray(self.volume[start:stop, :, :, r0:r1], dtype=np.float64)
+
+    def truth(self, frame: int, names: tuple) -> dict:
+        return {n: np.asarray(self._truth[n], dtype=np.float64) for n in names
+                if n in self._truth}
+
+    def identity(self) -> dict:
+        return dict(self._identity)
+
+    def files(self, start: int, stop: int) -> list[Path]:
+        return list(self._files)
+
+
+def source_from_volume(path, data: GridVolume, kind: str, files=None,
+                       ref_frame: int | None = None) -> Source:
+    """A :class:`Source` over a volume in memory (its truth at the reference frame)."""
+    T, Sy, Sx, H, W = data.volume.shape
+    ref = ref_frame if ref_frame is not None else data.meta.get("ref_frame")
+    truth_frame = ref if ref is not None else (T - 1) // 2
+    reader = ArrayReader(data.volume, dict(data.truth), files or [Path(path)],
+                         {"kind": kind, "dtype": str(data.volume.dtype)})
+    return Source(Path(path), data.volume.shape, data.geometry, kind,
+                  tuple(sorted(data.truth)), truth_frame, ref, dict(data.meta), reader)

@@ -65,10 +65,12 @@ def _add_estimator_args(p: argparse.ArgumentParser) -> None:
                         "one structure tensor, and each is written to OUTPUT with _MODEL "
                         "before the suffix")
     g.add_argument("--motion", choices=MOTIONS, default=None,
-                   help="motion model: the paper's translating patch (default), or "
-                        "'affine': a velocity varying across the surface, which adds the "
-                        "maps growth (relative area rate), rotation (about the normal) and "
-                        "the slopes' rates Zx_t, Zy_t; needs 5 frames (docs/model.md)")
+                   help="motion model, whatever the output: the paper's translating patch "
+                        "('translation', the default: the more precise motion where nothing "
+                        "grows), or 'affine': a velocity varying across the surface, which "
+                        "adds the maps growth (relative area rate, per frame), rotation "
+                        "(rad per frame about the normal) and the slopes' rates Zx_t, Zy_t; "
+                        "needs 5 frames; what gridflow growth reads (docs/model.md)")
     g.add_argument("--sigma", type=float, default=None,
                    help=f"Gaussian sigma, px (default {DEFAULTS['sigma']:g}; a refocused "
                         f"light field: {lines[0]:g}, or {occl[0]:g} with --select coarse)")
@@ -156,66 +158,16 @@ def cmd_generate(a) -> int:
     return 0
 
 
-def _series_mode(a) -> bool:
-    """``gridflow estimate`` writes a time series: the output is a Zarr store, or the input
-    is a recording store."""
-    from gridflow.recording import is_recording_store
-
-    return (Path(a.output).suffix.lower() == ".zarr"
-            or (Path(a.input).is_dir() and is_recording_store(a.input)))
-
-
 def cmd_estimate(a) -> int:
-    from gridflow.errors import UsageError
+    from gridflow.pipeline import RunOptions, estimate
 
-    from .single import estimate_input
-
-    series_flags = [f for f, given in (("--every", a.every is not None),
-                                       ("--first", a.first is not None),
-                                       ("--last", a.last is not None),
-                                       ("--workers", a.workers is not None),
-                                       ("--memory", a.memory is not None),
-                                       ("--band-rows", a.band_rows is not None),
-                                       ("--connect", a.connect is not None)) if given]
-    if _series_mode(a):
-        return _cmd_series(a)
-    if series_flags:
-        raise UsageError(f"{', '.join(series_flags)}: for a time series (-o MAPS.zarr from "
-                         "a recording); -o names an .npz")
-    shears = None if a.shears is None else _shear_range(a.shears)
-    report = estimate_input(a.input, a.output, models=a.model,
-                            settings=_estimator_settings(a), views=a.views, shears=shears,
-                            select=a.select, fill=False if a.no_fill else None, median=a.median,
-                            progress=not a.no_progress)
-    for line in report.lines:
-        print(line)
-    return 0
-
-
-def _cmd_series(a) -> int:
-    from gridflow.errors import UsageError
-
-    from .series import run_series
-
-    if Path(a.output).suffix.lower() != ".zarr":
-        raise UsageError(f"{a.input} is a recording: its time series is written to a Zarr "
-                         "store, e.g. -o maps.zarr (--every K)")
-    other = [f for f, given in (("--views", a.views is not None),
-                                ("--shears", a.shears is not None),
-                                ("--select", a.select is not None),
-                                ("--median", a.median is not None),
-                                ("--no-fill", a.no_fill)) if given]
-    if other:
-        raise UsageError(f"{', '.join(other)}: light fields only; a recording's time series "
-                         "is estimated frame by frame")
-    models = a.model or ("full",)
-    if len(models) != 1:
-        raise UsageError(f"--model {','.join(models)}: a time series takes one model")
-    report = run_series(a.input, a.output, every=1 if a.every is None else a.every,
-                        model=models[0], settings=_estimator_settings(a), workers=a.workers,
-                        memory=a.memory, connect=a.connect, first=a.first, last=a.last,
-                        band_rows=a.band_rows, progress=not a.no_progress)
-    for line in report.lines:
+    o = RunOptions(models=a.model, settings=_estimator_settings(a), every=a.every,
+                   first=a.first, last=a.last, views=a.views,
+                   shears=None if a.shears is None else _shear_range(a.shears),
+                   select=a.select, fill=False if a.no_fill else None, median=a.median,
+                   workers=a.workers, memory=a.memory, band_rows=a.band_rows,
+                   connect=a.connect, progress=not a.no_progress)
+    for line in estimate(a.input, a.output, o).lines:
         print(line)
     return 0
 
@@ -223,7 +175,7 @@ def _cmd_series(a) -> int:
 def cmd_record(a) -> int:
     from gridflow.generators.recording import RecordingParams
 
-    from .series import make_recording
+    from .recordings import make_recording
 
     params = RecordingParams(**_dataclass_values(a, RecordingParams))
     for line in make_recording(a.output, params,
@@ -235,7 +187,7 @@ def cmd_record(a) -> int:
 def cmd_record_leaf(a) -> int:
     from gridflow.scenes import LeafRecording
 
-    from .series import make_leaf_recording
+    from .recordings import make_leaf_recording
 
     scene = LeafRecording(frames=a.frames, width=a.size, height=a.size, grid=(a.grid, a.grid),
                           growth=a.growth, rhythm=a.rhythm, period=a.period,
@@ -250,7 +202,7 @@ def cmd_record_leaf(a) -> int:
 def cmd_growth(a) -> int:
     from gridflow.io import check_output
 
-    from .series import draw_growth, growth_table
+    from gridflow.pipeline import draw_growth, growth_table
 
     if a.csv:
         check_output(a.csv, suffixes=".csv", inputs=[a.maps], what="--csv")
@@ -277,7 +229,7 @@ def cmd_growth(a) -> int:
 
 
 def cmd_evaluate(a) -> int:
-    from .metrics import eq22_table
+    from gridflow.metrics import eq22_table
     from .single import evaluate_input
 
     r = evaluate_input(a.estimate, a.volume)
@@ -330,7 +282,7 @@ def cmd_sweep(a) -> int:
     t0 = time.perf_counter()
     client = None
     if a.scheduler or a.workers:
-        from .executors import make_client
+        from gridflow.pipeline.executors import make_client
 
         client = make_client(a.scheduler, a.workers, timeout=a.connect_timeout)
         print(f"dask: {len(client.scheduler_info()['workers'])} workers", file=sys.stderr)
@@ -595,8 +547,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_generate)
 
     p = sub.add_parser("estimate", help="estimate depth, slopes, motion, brightness")
-    p.add_argument("input", help="volume .npz, camera-grid folder with grid.json, or an HCI "
-                                 "light field scene folder (input_Cam000.png ...)")
+    p.add_argument("input", help="a volume .npz, a camera-grid folder with grid.json, an HCI "
+                                 "light field scene folder (input_Cam000.png ...) or a "
+                                 "recording store (.zarr, gridflow record)")
     p.add_argument("--views", type=_positive_int, default=None,
                    help="HCI scenes: the central VIEWS x VIEWS views to use (odd; default "
                         "all, or 5, what 5-tap camera filters reach, with --shears none or "
@@ -628,10 +581,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true",
                    help="no messages before long steps and no progress bar")
     p.add_argument("-o", "--output", required=True,
-                   help="output estimate .npz, or a Zarr store (MAPS.zarr) for the time "
-                        "series of a recording")
-    r = p.add_argument_group("recordings (-o MAPS.zarr: the estimate at every K-th frame, "
-                             "out of core, on Dask; README: Long recordings)")
+                   help="output: an estimate .npz (one step, at --ref-frame or the input's "
+                        "reference frame), or a map series MAPS.zarr (a step at every K-th "
+                        "frame whose window fits); any input goes to either")
+    r = p.add_argument_group("map series (-o MAPS.zarr: the estimate at every K-th frame, "
+                             "out of core, on Dask, resumable; README: Long recordings)")
     r.add_argument("--every", type=_positive_int, default=None, metavar="K",
                    help="frames between time steps (default 1)")
     r.add_argument("--first", type=int, default=None, metavar="FRAME",
@@ -650,7 +604,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "widest bands --memory allows); the maps are the same")
     r.add_argument("--connect", default=None, metavar="ADDRESS",
                    help="a dask.distributed scheduler (tcp://HOST:PORT) whose workers see "
-                        "the recording and the store at the same paths")
+                        "the input and the store at the same paths (instead of --workers "
+                        "and --memory, which are this machine's)")
     p.set_defaults(func=cmd_estimate)
 
     p = sub.add_parser("record", help="render a synthetic growth recording (Zarr): a plane "
@@ -694,9 +649,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=cmd_record_leaf)
 
-    p = sub.add_parser("growth", help="a map series' growth: maps at chosen frames, the mean "
-                                      "over time with its spread (and against truth)")
-    p.add_argument("maps", help="map series (.zarr) from gridflow estimate RECORDING -o MAPS.zarr")
+    p = sub.add_parser("growth", help="a map series' growth: maps at chosen frames, the "
+                                      "median over time with its spread and the mean (and "
+                                      "against truth)")
+    p.add_argument("maps", help="map series (.zarr) from gridflow estimate RECORDING -o MAPS.zarr "
+                   "--motion affine")
     p.add_argument("--truth", metavar="RECORDING", help="a recording with growth truth per "
                    "frame (gridflow record): Q_rel per step")
     p.add_argument("--times", type=int, nargs="+", metavar="FRAME",
@@ -832,7 +789,7 @@ def _user_errors() -> tuple[type, ...]:
     from gridflow.estimator import InputError
     from gridflow.scenes.render import PovrayMissing, RenderError
 
-    from .executors import ClusterError
+    from gridflow.pipeline.executors import ClusterError
 
     return (GridflowError, InputError, OSError, PovrayMissing, RenderError, ClusterError)
 
@@ -849,7 +806,7 @@ def main(argv=None) -> int:
         handler.setFormatter(logging.Formatter("gridflow: %(message)s"))
         log.addHandler(handler)
         log.setLevel(logging.INFO)
-    from .executors import Terminated, signals_raise
+    from gridflow.pipeline.executors import Terminated, signals_raise
 
     try:
         # SIGTERM raises like Ctrl-C, so that a file being written is removed (atomic

@@ -21,7 +21,7 @@ import pandas as pd
 from gridflow.estimator import estimate_models
 from gridflow.scenes import FACE_NAMES, CubeScene, face_interior, spot_angle
 
-from .metrics import q_abs, q_rel
+from gridflow.metrics import q_abs, q_rel
 
 __all__ = ["run_cube_experiment", "CubeReport", "run_cube", "cube_table", "fig1",
            "observation11", "observation12", "regions", "cube_markdown", "angular_errors"]

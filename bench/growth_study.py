@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from gridflow.bench.metrics import evaluate
+from gridflow.metrics import evaluate
 from gridflow.estimator import estimate
 from gridflow.generators import make_sinusoid
 

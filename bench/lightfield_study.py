@@ -15,7 +15,7 @@ two-layer scenes of exact disparity (bands 10 px high with 12 px gaps, and thin 
 with 8 px gaps, 9 x 9 views, 192^2, foreground and background 2 px per view apart), the
 POV-Ray cube as a 5 x 5 light field (-0.6 .. 3.0 px per view; rendered once into
 ``--cache``), and any HCI scene given.  Scores: the HCI benchmark's MSE x 100 and
-BadPix(0.07) by its toolkit's rule (:func:`gridflow.bench.metrics.hci_metrics`), the
+BadPix(0.07) by its toolkit's rule (:func:`gridflow.metrics.hci_metrics`), the
 share of scored pixels without a value, and the seconds of each estimate.
 """
 
@@ -27,7 +27,7 @@ import time
 
 import numpy as np
 
-from gridflow.bench.metrics import hci_metrics
+from gridflow.metrics import hci_metrics
 from gridflow.estimator import estimate
 from gridflow.estimator.lightfield import estimate_refocused, estimate_shear_range
 

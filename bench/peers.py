@@ -21,7 +21,7 @@ in pixels per camera step with the HCI sign.
   written here: orientation of the horizontal and vertical epipolar-plane images from a
   Gaussian-smoothed 2-D structure tensor, the more coherent of the two kept per pixel.
 
-Scores: :func:`gridflow.bench.metrics.hci_metrics` (the HCI benchmark's MSE x 100 and
+Scores: :func:`gridflow.metrics.hci_metrics` (the HCI benchmark's MSE x 100 and
 BadPix) for depth, Eq. 22 of the image flow for motion.
 """
 
@@ -36,7 +36,7 @@ import pandas as pd
 
 from gridflow.estimator import MODELS
 
-from .metrics import evaluate, hci_metrics
+from gridflow.metrics import evaluate, hci_metrics
 
 __all__ = ["epi_structure_tensor", "DEPTH_METHODS", "run_depth", "compare_motion",
            "MOTION_CASES", "run_peers", "PeersReport", "score_hci_scene", "check_hci_scene"]
@@ -299,7 +299,7 @@ class PeersReport:
     label : str
         The depth scene.
     depth : pandas.DataFrame
-        One row per depth method: :func:`gridflow.bench.metrics.hci_metrics` and
+        One row per depth method: :func:`gridflow.metrics.hci_metrics` and
         ``seconds``.
     motion : pandas.DataFrame
         One row per case, method and flow component (:func:`compare_motion`).

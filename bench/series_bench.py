@@ -158,7 +158,7 @@ def _run(a, work: Path) -> None:
     ref = None
     from dask.distributed import LocalCluster
 
-    from gridflow.bench.executors import worker_env
+    from gridflow.pipeline.executors import worker_env
 
     runs = [("local threads: 1 step at once, 2 numba threads", ["--workers", "1"]),
             ("local threads: 2 steps at once, 1 numba thread each", ["--workers", "2"])]

@@ -9,7 +9,7 @@ code of every module a row depends on and the library versions), so that re-runn
 interrupted sweep reuses exactly the finished, still valid points.  The final CSV is
 assembled from the parts in a fixed order (so it does not depend on which point finished
 first), written atomically, and the parts are removed.  Where the points run is an
-:mod:`gridflow.bench.executors` choice.
+:mod:`gridflow.pipeline.executors` choice.
 
 Noise is seeded by the point's ``seed`` alone, so a point's result does not depend on the
 order or the process it ran in.
@@ -31,8 +31,8 @@ from gridflow.estimator import DEFAULTS, estimate_models
 from gridflow.generators import SinusoidParams, add_noise, make_sinusoid
 from gridflow.io import atomic_write
 
-from .executors import Dask, InProcess, Pool, Terminated, signals_raise
-from .metrics import evaluate
+from gridflow.pipeline.executors import Dask, InProcess, Pool, Terminated, signals_raise
+from gridflow.metrics import evaluate
 from .setups import get_setup
 from .spec import Point, SpecError, SweepSpec
 
@@ -47,7 +47,7 @@ QUANTITY_ORDER = ["Z", "Zx", "Zy", "Ux", "Uy", "Uz", "growth", "rotation", "Zx_t
 # the library versions) keys a finished point, so a changed module is never mixed in
 _ROW_SOURCES = ("gridflow.estimator", "gridflow.generators", "gridflow.volume", "gridflow.io",
                 "gridflow.errors", "gridflow.bench.spec", "gridflow.bench.sweep",
-                "gridflow.bench.executors", "gridflow.bench.metrics", "gridflow.bench.setups")
+                "gridflow.pipeline.executors", "gridflow.metrics", "gridflow.bench.setups")
 
 
 class SweepInterrupted(RuntimeError):

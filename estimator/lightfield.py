@@ -46,6 +46,7 @@ from __future__ import annotations
 import numpy as np
 
 from .driver import estimate
+from .result import Estimate
 from .settings import InputError
 
 __all__ = ["shear", "estimate_refocused", "SELECT_DEFAULTS", "SELECTS", "stated_shears",
@@ -275,7 +276,7 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
                        filters: str = "matched5", select: str = "lines",
                        subgrid: int | None = None, aggregate: int = 3,
                        coarse_sigma: float = 2.0, fill: bool = True, median: int = 3,
-                       progress=None) -> dict:
+                       progress=None) -> Estimate:
     """Disparity of the centre view over a range of integer shears.
 
     Parameters
@@ -325,12 +326,15 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
 
     Returns
     -------
-    dict of str to ndarray, each shape (H, W)
-        ``disparity``; ``shear``: the shear used; ``model_error``: the model error of
-        the estimate kept; ``confidence``: ``-log10`` of that model error relative to
-        its median over the image (larger is better; threshold it to mask); ``valid``:
-        an admissible estimate (finite, within half a pixel of its shear); ``filled``:
-        see ``fill``; with ``select="coarse"`` also ``coarse``: the coarse disparity.
+    Estimate
+        Model ``bcc``; maps, each shape (H, W): ``disparity``; ``shear``: the shear used;
+        ``model_error``: the model error of the estimate kept; ``confidence``:
+        ``-log10`` of that model error relative to its median over the image (larger is
+        better; threshold it to mask); ``filled``: 1 where the value was filled from the
+        neighbours (see ``fill``), else 0; with ``select="coarse"`` also ``coarse``: the
+        coarse disparity.  ``interior``: the pixels with a value, an admissible estimate
+        of their own (finite, within half a pixel of its shear: ``interior & (filled ==
+        0)``) or a filled one.  ``settings``: the shears and the settings used.
     """
     v = np.asarray(views, dtype=np.float64)
     if v.ndim != 4 or v.shape[0] != v.shape[1] or v.shape[0] % 2 == 0:
@@ -373,11 +377,14 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         disp = _median(disp, int(median))
     # the shear of a pixel without an estimate would read as a disparity: NaN there
     shear_map = np.where(np.isfinite(disp), out["shear"], np.nan)
-    res = {"disparity": disp, "shear": shear_map, "model_error": err, "confidence": conf,
-           "valid": valid, "filled": filled}
+    maps = {"disparity": disp, "shear": shear_map, "model_error": err, "confidence": conf,
+            "filled": filled.astype(float)}
     if "coarse" in out:
-        res["coarse"] = out["coarse"]
-    return res
+        maps["coarse"] = out["coarse"]
+    settings = {"shears": list(shifts), "select": select, "sigma": sigma, "window": window,
+                "filters": filters, "fill": fill, "median": median,
+                "views": [n, n]}
+    return Estimate(maps, "bcc", valid | filled, settings)
 
 
 def _median(disp, size):

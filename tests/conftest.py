@@ -10,7 +10,7 @@ import pytest
 
 from gridflow.estimator import estimate_models
 from gridflow.generators import make_sinusoid
-from gridflow.bench.metrics import evaluate
+from gridflow.metrics import evaluate
 
 
 def _key(kw: dict) -> tuple:

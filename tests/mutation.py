@@ -44,6 +44,7 @@ TREE = Path(tempfile.gettempdir()) / "gridflow-mutants"
 # repository folder -> folder in the installed namespace (pyproject.toml, package-dir)
 LAYOUT = {"base": "gridflow", "estimator": "gridflow/estimator",
           "generators": "gridflow/generators", "scenes": "gridflow/scenes",
+          "pipeline": "gridflow/pipeline",
           "bench": "gridflow/bench", "bench/sweeps": "gridflow/bench/sweeps"}
 
 
@@ -212,24 +213,24 @@ MUTANTS = [
            (T + "test_generator.py::test_add_noise_is_rendering_with_noise",),
            "add_noise drawing other numbers than the rendering"),
     # --- metrics ---------------------------------------------------------------------------
-    Mutant("metrics-negative-reference", "bench/metrics.py",
+    Mutant("metrics-negative-reference", "base/metrics.py",
            "        use_rel = bool(np.all(r > 0) or np.all(r < 0))",
            "        use_rel = bool(np.all(r > 0))",
            (T + "test_metrics.py", TRUTH + "::test_every_quantity_against_exact_truth"),
            "the relative measure for all-positive references only"),
-    Mutant("metrics-q-rel-denominator", "bench/metrics.py",
+    Mutant("metrics-q-rel-denominator", "base/metrics.py",
            "    return float(np.mean(np.abs(e - r) / np.abs(r)))",
            "    return float(np.mean(np.abs(e - r) / np.abs(e)))", (T + "test_metrics.py",),
            "Q_rel divided by the estimate"),
-    Mutant("metrics-invalid-count", "bench/metrics.py",
+    Mutant("metrics-invalid-count", "base/metrics.py",
            "        n_inv = int(np.count_nonzero(~np.isfinite(np.asarray(est)[m])))",
            "        n_inv = int(np.count_nonzero(np.isnan(np.asarray(est)[m])))",
            (T + "test_metrics.py",), "infinite estimates not counted as invalid"),
-    Mutant("metrics-hci-mse", "bench/metrics.py",
+    Mutant("metrics-hci-mse", "base/metrics.py",
            '    out = {"mse_x100": float(100.0 * np.mean(err[ok] ** 2))',
            '    out = {"mse_x100": float(100.0 * np.mean(err[ok]))', (T + "test_metrics.py",),
            "the HCI MSE as a mean absolute error"),
-    Mutant("metrics-hci-badpix-nonfinite", "bench/metrics.py",
+    Mutant("metrics-hci-badpix-nonfinite", "base/metrics.py",
            "        out[key] = (float(100.0 * np.mean(ok & (err > tau))) if g.size else",
            "        out[key] = (float(100.0 * np.mean(err[ok] > tau)) if g.size else",
            (T + "test_metrics.py", T + "test_lightfield.py"),

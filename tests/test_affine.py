@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gridflow.bench.metrics import evaluate
+from gridflow.metrics import evaluate
 from gridflow.estimator import InputError, estimate, estimate_models
 from gridflow.generators import SinusoidParams, make_sinusoid
 from gridflow.generators.sinusoid import velocity_gradient

@@ -536,7 +536,7 @@ def test_no_process_outlives_a_killed_sweep(tmp_path):
 
 @pytest.mark.slow
 def test_dask_results_come_back_to_the_client(tmp_path, monkeypatch):
-    from gridflow.bench.executors import make_client
+    from gridflow.pipeline.executors import make_client
 
     spec = SweepSpec.from_dict(SPEC_OK)
     ref = tmp_path / "ref.csv"
@@ -559,7 +559,7 @@ def test_dask_results_come_back_to_the_client(tmp_path, monkeypatch):
 
 
 def test_a_port_that_is_not_a_scheduler_fails_within_the_timeout():
-    from gridflow.bench.executors import make_client
+    from gridflow.pipeline.executors import make_client
 
     srv = socket.socket()
     srv.bind(("127.0.0.1", 0))

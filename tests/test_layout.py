@@ -3,8 +3,9 @@ and never in a circle.
 
 The layers, bottom to top (README, *Layout*):
 
-    base/ -> gridflow (shared base: volume container, file formats)   estimator/ (numerics)
-    generators/, scenes/ (data sources)
+    base/ -> gridflow (shared base: volume container, sources, file formats)
+    estimator/ (numerics)
+    generators/, scenes/ (data sources)     pipeline/ (the grower's path: run, sinks, growth)
     bench/ (benchmark) and bench/cli.py (the CLI, imported by nothing)
 
 The import rules are checked on the source (every ``import`` statement, also those inside
@@ -38,8 +39,9 @@ LAYERS = {
     "estimator": ("gridflow.estimator", set()),
     "generators": ("gridflow.generators", {"gridflow"}),
     "scenes": ("gridflow.scenes", {"gridflow"}),
+    "pipeline": ("gridflow.pipeline", {"gridflow", "gridflow.estimator"}),
     "bench": ("gridflow.bench", {"gridflow", "gridflow.estimator", "gridflow.generators",
-                                 "gridflow.scenes"}),
+                                 "gridflow.scenes", "gridflow.pipeline"}),
 }
 # third-party libraries that belong to the edges: the numerics and data sources never need
 # them (pictures and tables are the benchmark's business)
@@ -69,11 +71,12 @@ def _imports(path: Path, package: str) -> set[str]:
 def _layer_of(name: str) -> str | None:
     """The project layer an imported name belongs to, or None for other libraries."""
     parts = name.split(".")
-    if parts[0] in ("estimator", "generators", "scenes", "bench", "base"):
+    if parts[0] in ("estimator", "generators", "scenes", "bench", "base", "pipeline"):
         return "top-level name of a repository folder, " + parts[0]
     if parts[0] != "gridflow":
         return None
-    if len(parts) > 1 and parts[1] in ("estimator", "generators", "scenes", "bench"):
+    if len(parts) > 1 and parts[1] in ("estimator", "generators", "scenes", "pipeline",
+                                       "bench"):
         return "gridflow." + parts[1]
     if len(parts) > 1 and parts[1] in ("cli",):
         return "gridflow.bench"
@@ -177,7 +180,7 @@ def test_site_packages_holds_gridflow_alone(installed):
                  if not p.name.endswith((".dist-info", ".pth")) and p.name not in _INSTALLER)
     assert top == ["gridflow"], top
     inner = {p.name for p in (site / "gridflow").iterdir()}
-    assert {"estimator", "generators", "scenes", "bench"} <= inner
+    assert {"estimator", "generators", "scenes", "pipeline", "bench"} <= inner
     assert (site / "gridflow" / "bench" / "sweeps" / "paper.toml").is_file()
 
 
@@ -221,9 +224,15 @@ def test_installed_cli_runs_outside_the_repository(installed):
 # layer of each subpackage of the installed namespace (a module may import its own layer's
 # modules and those of lower layers; base and estimator import nothing of the project)
 _RANK = {"gridflow": 0, "gridflow.estimator": 0, "gridflow.generators": 1,
-         "gridflow.scenes": 1, "gridflow.bench": 2, "gridflow.bench.cli": 3}
+         "gridflow.scenes": 1, "gridflow.pipeline": 1, "gridflow.bench": 2,
+         "gridflow.bench.cli": 3}
 # within a layer, the parts that may not import each other
-_APART = [{"gridflow", "gridflow.estimator"}, {"gridflow.generators", "gridflow.scenes"}]
+_APART = [{"gridflow", "gridflow.estimator"}, {"gridflow.generators", "gridflow.scenes"},
+          {"gridflow.pipeline", "gridflow.generators"}, {"gridflow.pipeline", "gridflow.scenes"}]
+# the grower's path: what `gridflow estimate`, `gridflow growth` and their library calls
+# run; none of it may reach the benchmark, directly or through another module
+GROWERS_PATH = ("gridflow.pipeline", "gridflow.sources", "gridflow.recording",
+                "gridflow.loader", "gridflow.hci", "gridflow.io", "gridflow.estimator")
 
 
 def import_graph(package_dir: Path, package: str = "gridflow") -> dict[str, set[str]]:
@@ -330,6 +339,52 @@ def test_installed_import_graph_has_no_cycle_and_runs_downwards(installed):
     assert not cycles(graph), f"import cycles: {cycles(graph)}"
     assert not upward_edges(graph), "imports against the layering:\n" + "\n".join(
         upward_edges(graph))
+
+
+def reaches_benchmark(graph: dict[str, set[str]], roots=GROWERS_PATH) -> list[str]:
+    """Import chains from a module of the grower's path to the benchmark (``gridflow.
+    bench``), each as ``a -> b -> ... -> gridflow.bench.x``."""
+    out = []
+    starts = [m for m in graph if any(m == r or m.startswith(r + ".") for r in roots)]
+    for start in sorted(starts):
+        seen, todo = {start: [start]}, [start]
+        while todo:
+            a = todo.pop()
+            for b in sorted(graph.get(a, ())):
+                if b in seen:
+                    continue
+                seen[b] = seen[a] + [b]
+                if b == "gridflow.bench" or b.startswith("gridflow.bench."):
+                    out.append(" -> ".join(seen[b]))
+                else:
+                    todo.append(b)
+    return out
+
+
+def test_the_growers_path_imports_nothing_of_the_benchmark(installed):
+    _, site, _ = installed
+    graph = import_graph(site / "gridflow")
+    assert {"gridflow.pipeline.run", "gridflow.pipeline.sinks", "gridflow.sources"} <= set(graph)
+    chains = reaches_benchmark(graph)
+    assert not chains, "the grower's path reaches the benchmark:\n" + "\n".join(chains)
+
+
+def test_the_benchmark_check_can_fail(tmp_path):
+    """A pipeline module that imports a base module that imports the benchmark (inside a
+    function) is found, with its chain."""
+    pkg = tmp_path / "gridflow"
+    for sub in ("", "pipeline", "bench"):
+        (pkg / sub).mkdir(parents=True, exist_ok=True)
+        (pkg / sub / "__init__.py").write_text("")
+    (pkg / "pipeline" / "run.py").write_text("from gridflow import io\n")
+    (pkg / "io.py").write_text("def f():\n    from gridflow.bench.sweep import code\n")
+    (pkg / "bench" / "sweep.py").write_text("code = 1\n")
+    graph = import_graph(pkg)
+    assert reaches_benchmark(graph) == [
+        "gridflow.io -> gridflow.bench.sweep",
+        "gridflow.pipeline.run -> gridflow.io -> gridflow.bench.sweep"]
+    (pkg / "io.py").write_text("def f():\n    return 1\n")
+    assert reaches_benchmark(import_graph(pkg)) == []
 
 
 def test_the_graph_checker_finds_cycles_and_upward_imports(tmp_path):

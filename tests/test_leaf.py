@@ -83,7 +83,7 @@ def test_leaf_recording_truth_is_its_geometrys_motion():
 
 @pytest.fixture(scope="module")
 def leaf_recording(tmp_path_factory):
-    from gridflow.bench.series import make_leaf_recording
+    from gridflow.bench.recordings import make_leaf_recording
 
     root = tmp_path_factory.mktemp("leafrec")
     make_leaf_recording(root / "leaf.zarr", REC, cache=root / "cache")
@@ -95,9 +95,9 @@ def test_leaf_recording_images_match_the_truth_per_frame(leaf_recording):
     is 0.05, the background 0) are where the truth's depth is finite (measured 99.96 % of
     the pixels agree at the first and the last frame, as for SMALL), and the leaf's area
     grows between them (6846 to 7287 pixels measured)."""
-    from gridflow.recording import open_recording
+    from gridflow.sources import open_source
 
-    rec = open_recording(leaf_recording)
+    rec = open_source(leaf_recording)
     assert sorted(rec.truth_names) == sorted(("Z", "Ux", "Uy", "Uz", "growth"))
     assert rec.frame_interval == REC.frame_interval
     areas = []
@@ -120,7 +120,7 @@ def test_leaf_recording_growth_series_against_its_truth(leaf_recording, tmp_path
     variance in time, at most 4 frames^2: 2 g0 m w^2 / g_min = 2 % with the default day of
     40 frames)."""
     from gridflow.bench.cli import main
-    from gridflow.bench.series import growth_table
+    from gridflow.pipeline import growth_table
 
     out = tmp_path / "maps.zarr"
     assert main(["estimate", str(leaf_recording), "-o", str(out), "--sigma", "5",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gridflow.bench.metrics import evaluate, hci_metrics, q_abs, q_rel
+from gridflow.metrics import evaluate, hci_metrics, q_abs, q_rel
 
 
 def _one(est, ref, mask=None):

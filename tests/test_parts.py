@@ -65,7 +65,7 @@ def _threads_seen(_):
 def test_pool_workers_share_the_cores():
     """Each of two pool workers gets cores // 2 threads for BLAS, numba and (numba's count)
     scipy.fft; before, numba and scipy.fft took every core in every worker."""
-    from gridflow.bench.executors import Pool
+    from gridflow.pipeline.executors import Pool
 
     want = max(1, (os.cpu_count() or 1) // 2)
     before = dict(os.environ)

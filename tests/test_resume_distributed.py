@@ -74,7 +74,7 @@ def test_sigkill_at_several_points_then_resume(tmp_path):
 
 @pytest.mark.slow
 def test_local_dask_cluster_gives_the_in_process_result(tmp_path):
-    from gridflow.bench.executors import make_client
+    from gridflow.pipeline.executors import make_client
 
     spec = SweepSpec.from_toml(_write(tmp_path))
     ref = tmp_path / "ref.csv"
@@ -89,7 +89,7 @@ def test_local_dask_cluster_gives_the_in_process_result(tmp_path):
 
 
 def test_unreachable_scheduler_is_a_clear_error():
-    from gridflow.bench.executors import make_client
+    from gridflow.pipeline.executors import make_client
 
     with pytest.raises(RuntimeError, match="cannot reach the dask scheduler"):
         make_client("tcp://127.0.0.1:9")

@@ -23,7 +23,17 @@ from gridflow.generators.recording import GrowthRecording, RecordingParams
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = dict(frames=40, height=64, width=64, grid=(3, 3), growth=2e-3, rhythm=0.8,
              period=60.0, illumination=0.3)
-EST = ["--sigma", "2", "--window", "9", "--no-progress"]
+# a recording is estimated for its growth maps: the affine motion model
+EST = ["--sigma", "2", "--window", "9", "--motion", "affine", "--no-progress"]
+
+
+def run_series(recording, output, *, every=1, settings=None, **options):
+    """The pipeline into a map series, with the growth model unless settings say
+    otherwise (the command line's ``estimate REC -o MAPS.zarr --motion affine``)."""
+    from gridflow.pipeline import RunOptions, estimate
+
+    settings = {"motion": "affine", **(settings or {})}
+    return estimate(recording, output, RunOptions(settings=settings, every=every, **options))
 
 
 def _record(path: Path, **over) -> Path:
@@ -124,8 +134,8 @@ def test_series_growth_follows_the_rhythm(recording, tmp_path, capsys):
     of at most 1/2 g'' 4 / g_min = 2 g0 m w^2 / (g0 (1 - m)) = 2.2 % with the rhythm here
     (m 0.8, period 60 frames); 3 % is allowed.  The rhythm itself is recovered: the
     correlation of the mean growth with the truth over the steps exceeds 0.999."""
-    from gridflow.bench.metrics import q_rel
-    from gridflow.bench.series import growth_table
+    from gridflow.metrics import q_rel
+    from gridflow.pipeline import growth_table
     from gridflow.estimator import estimate
     from gridflow.generators import make_sinusoid
 
@@ -152,7 +162,6 @@ def test_an_interrupted_series_resumes_to_the_same_store(recording, tmp_path):
     """A run stopped after 3 steps, then the same command again: the second run does only
     the rest (the steps done are skipped), and the store equals, array for array, that of
     one uninterrupted run."""
-    from gridflow.bench.series import run_series
 
     settings = {"sigma": 2.0, "window": 9}
     whole, parts = tmp_path / "whole.zarr", tmp_path / "parts.zarr"
@@ -174,9 +183,9 @@ def test_row_bands_give_the_whole_steps_maps(recording, tmp_path):
     settings).  Each quantity of the banded store may differ from the whole store's by at
     most 4 times that internal-banding difference on the same step, plus the float32
     rounding of both stored values."""
-    from gridflow.bench.series import run_series
     from gridflow.estimator import estimate_models
-    from gridflow.recording import MapStore, open_recording
+    from gridflow.recording import MapStore
+    from gridflow.sources import open_source
 
     settings = {"sigma": 2.0, "window": 9}
     whole, banded = tmp_path / "whole.zarr", tmp_path / "banded.zarr"
@@ -187,7 +196,7 @@ def test_row_bands_give_the_whole_steps_maps(recording, tmp_path):
     assert rep.done == a.done().sum() == 7 and b.band_done().shape == (7, 7)
     assert np.array_equal(a.group["interior"][:], b.group["interior"][:])
     # the estimator's rounding sensitivity on the first step: one call, two internal bandings
-    rec = open_recording(recording)
+    rec = open_source(recording)
     k, reach = int(a.frames()[0]), a.attrs["gridflow"]["reach"]
     kw = dict(models=("full",), motion="affine", ref_frame=reach, **settings,
               principal_point=rec.principal_point)
@@ -207,7 +216,6 @@ def test_an_interrupted_banded_series_resumes_band_by_band(recording, tmp_path):
     """Stopped after 10 band tasks (a step and a half of 7 bands), the same command does
     only the remaining bands, and the store equals, array for array, an uninterrupted
     banded run's."""
-    from gridflow.bench.series import run_series
     from gridflow.recording import MapStore
 
     settings = {"sigma": 2.0, "window": 9}
@@ -239,15 +247,16 @@ def test_a_step_over_the_memory_budget_runs_in_row_bands(recording, tmp_path, ca
     """With a budget one step's frames do not fit, the steps are cut into the widest row
     bands that fit (said before the run); a budget not even a minimal band fits is refused
     before anything is written."""
-    from gridflow.bench.series import step_memory
-    from gridflow.recording import MapStore, open_recording
+    from gridflow.pipeline.run import step_memory
+    from gridflow.recording import MapStore
+    from gridflow.sources import open_source
 
-    rec = open_recording(recording)
+    rec = open_source(recording)
     halo = 4 + 2                                    # 9 taps; matched5's radius
     # a budget that fits a 16-row band but not a whole step (at 64 px a band saves memory
     # only when it is narrow: the model charges a band more per byte of its window)
-    budget = (step_memory(rec, 4, 16, halo) + 1024) / 2**30   # 1 KiB: the option's rounding
-    assert step_memory(rec, 4) > budget * 2**30
+    budget = (step_memory(rec.shape, 9, 16, halo) + 1024) / 2**30   # 1 KiB: the option's rounding
+    assert step_memory(rec.shape, 9) > budget * 2**30
     out = tmp_path / "maps.zarr"
     assert main(["estimate", str(recording), "-o", str(out), "--every", "10",
                  "--memory", f"{budget:.9f}", "--workers", "1", *EST[:-1]]) == 0
@@ -255,7 +264,7 @@ def test_a_step_over_the_memory_budget_runs_in_row_bands(recording, tmp_path, ca
     store = MapStore.open(out)
     assert 1 < len(store.bands()) and store.done().all()
     assert "row bands of" in err and store.band_rows == 16
-    assert step_memory(rec, 4, store.band_rows, halo) <= budget * 2**30
+    assert step_memory(rec.shape, 9, store.band_rows, halo) <= budget * 2**30
     tiny = tmp_path / "tiny.zarr"
     assert main(["estimate", str(recording), "-o", str(tiny), "--memory", "0.0001",
                  *EST]) == 2
@@ -272,16 +281,21 @@ def test_kill_9_mid_way_then_rerun_gives_the_same_store(recording, tmp_path):
         return [sys.executable, "-m", "gridflow.bench.cli", "estimate", str(recording),
                 "-o", str(out), *EST, "--workers", "1"]
 
-    t0 = time.monotonic()
     assert subprocess.run(cmd(whole), cwd=ROOT, capture_output=True).returncode == 0
-    duration = time.monotonic() - t0
     p = subprocess.Popen(cmd(parts), cwd=ROOT, stdout=subprocess.DEVNULL,
                          stderr=subprocess.DEVNULL)
-    # the steps take the last ~60 % of the run (start-up and compilation first)
-    time.sleep(0.75 * duration)
+    # killed once the first steps are done (the store is watched, not a clock: start-up
+    # takes from 1 to 10 s depending on the machine's load)
+    from gridflow.recording import MapStore
+
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and p.poll() is None:
+        done = parts / "done" / "c"
+        if done.is_dir() and sum(1 for _ in done.rglob("*")) >= 2:
+            break
+        time.sleep(0.02)
     p.send_signal(signal.SIGKILL)
     p.wait(timeout=30)
-    from gridflow.recording import MapStore
 
     done_before = int(MapStore.open(parts).done().sum())
     r = subprocess.run(cmd(parts), cwd=ROOT, capture_output=True, text=True)
@@ -299,7 +313,6 @@ def test_a_local_dask_cluster_gives_the_same_store(recording, tmp_path):
     store, bit for bit, as the local threaded scheduler."""
     from dask.distributed import LocalCluster
 
-    from gridflow.bench.series import run_series
 
     settings = {"sigma": 2.0, "window": 9}
     local, remote = tmp_path / "local.zarr", tmp_path / "remote.zarr"
@@ -337,26 +350,50 @@ def test_outputs_that_are_not_this_runs_store_are_refused(recording, tmp_path, c
     assert sorted(p.relative_to(recording) for p in recording.rglob("*")) == listing
 
 
-def test_recording_options_are_refused_where_they_do_not_apply(recording, tmp_path, capsys):
+def test_options_that_do_not_apply_are_refused(recording, tmp_path, capsys):
+    """One pipeline, one set of options: what an output or input cannot take is refused
+    by name, before anything is written."""
     vol = tmp_path / "v.npz"
     assert main(["generate", "--height", "32", "--width", "32", "-o", str(vol)]) == 0
     for args, match in (
             (["estimate", str(vol), "-o", str(tmp_path / "e.npz"), "--every", "2"],
-             "--every: for a time series"),
-            (["estimate", str(recording), "-o", str(tmp_path / "e.npz")],
-             "is a recording: its time series is written to a Zarr store"),
+             "--every: for a series of steps (-o MAPS.zarr)"),
             (["estimate", str(recording), "-o", str(tmp_path / "m.zarr"), "--shears", "-1",
-              "1"], "--shears: light fields only"),
-            (["estimate", str(recording), "-o", str(tmp_path / "m.zarr"), "--model", "all"],
-             "a time series takes one model"),
-            (["estimate", str(recording), "-o", str(tmp_path / "m.zarr"), "--ref-frame", "5"],
-             "--ref-frame: a time series"),
+              "1"], "--shears refocuses a light field of one frame"),
+            (["estimate", str(recording), "-o", str(tmp_path / "m.zarr"), "--ref-frame", "5",
+              "--every", "2"], "--ref-frame and --every"),
+            (["estimate", str(recording), "-o", str(tmp_path / "m.txt")],
+             "expected an estimate .npz (one step) or a map series .zarr"),
+            (["estimate", str(recording), "-o", str(tmp_path / "m.zarr"), "--connect",
+              "tcp://127.0.0.1:1", "--workers", "2"], "--workers: for this machine's"),
             (["estimate", str(recording), "-o", str(tmp_path / "m.zarr"), "--memory",
               "0.0001", *EST], "more than the memory budget")):
         assert main(args) == 2
         assert match in capsys.readouterr().err, args
     assert not (tmp_path / "m.zarr").exists() or not any(
         p.name.startswith(("Z", "growth")) for p in (tmp_path / "m.zarr").iterdir())
+
+
+def test_a_step_is_the_same_in_either_sink(recording, tmp_path):
+    """Any input to any output: a recording estimated into an .npz (one step, at
+    --ref-frame) gives the maps the map series holds for that step, to the store's
+    float32 rounding (relative 2^-24, asked 1e-6 of each map's largest value)."""
+    from gridflow.io import load_estimate
+    from gridflow.recording import MapStore
+
+    npz, zarr_out = tmp_path / "e.npz", tmp_path / "m.zarr"
+    assert main(["estimate", str(recording), "-o", str(npz), "--ref-frame", "20", *EST]) == 0
+    assert main(["estimate", str(recording), "-o", str(zarr_out), "--first", "16", "--last",
+                 "24", "--every", "4", *EST]) == 0
+    maps, interior, meta = load_estimate(npz)
+    store = MapStore.open(zarr_out)
+    assert list(store.frames()) == [16, 20, 24] and meta["settings"]["ref_frame"] == 20
+    assert np.array_equal(interior, np.asarray(store.group["interior"][:]))
+    for q in store.quantities:
+        a, b = maps[q], np.asarray(store.group[q][1], dtype=np.float64)
+        assert np.array_equal(np.isnan(a), np.isnan(b)), q
+        scale = np.nanmax(np.abs(a))
+        assert np.nanmax(np.abs(a - b)) <= 1e-6 * scale, q
 
 
 def _folder_recording(folder: Path, frames: int = 12) -> Path:
@@ -393,7 +430,6 @@ def test_a_bad_frame_in_the_middle_is_named_and_finished_steps_kept(tmp_path, ca
     folder = _folder_recording(tmp_path / "rec")
     out = tmp_path / "maps.zarr"
     run = ["estimate", str(folder), "-o", str(out), "--workers", "1", *EST]
-    from gridflow.bench.series import run_series
 
     run_series(folder, out, settings={"sigma": 2.0, "window": 9}, limit=1)
     assert MapStore.open(out).done().tolist() == [True, False, False, False]
@@ -444,3 +480,73 @@ def test_a_step_whose_frames_changed_is_estimated_again(tmp_path, capsys):
     assert "1 step(s) estimated again: frames they read changed since (steps at frames [4]" \
         in text, text
     assert "3 done by an earlier run" in text, text
+
+
+def _linked_package(root: Path) -> Path:
+    """The installed layout of the package as links to the repository's files (the
+    layout of tests/mutation.py), so that a test may edit one module of it."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("gridflow_layout", ROOT / "tests" /
+                                                  "mutation.py")
+    layout = importlib.util.module_from_spec(spec)
+    sys.modules["gridflow_layout"] = layout
+    try:
+        spec.loader.exec_module(layout)
+    finally:
+        del sys.modules["gridflow_layout"]
+    for folder, dest in layout.LAYOUT.items():
+        for f in sorted((ROOT / folder).iterdir()):
+            if f.is_file() and f.suffix in (".py", ".toml"):
+                (root / dest).mkdir(parents=True, exist_ok=True)
+                (root / dest / f.name).symlink_to(f)
+    return root
+
+
+def _edit(path: Path, old: str, new: str) -> None:
+    """Replace a link by an edited copy of its file."""
+    text = path.read_text()
+    assert text.count(old) == 1, (path, old)
+    path.unlink()
+    path.write_text(text.replace(old, new))
+
+
+@pytest.mark.slow
+def test_a_series_resumes_after_the_benchmark_changes(recording, tmp_path):
+    """A map series half-written, then a docstring of a benchmark-only module (the sweep
+    runner, whose code keyed map series before) and one of the estimator's changed: the
+    same command resumes the store and ends with the uninterrupted run's maps.  A change
+    of a statement in the estimator makes the store another run's (refused, kept).  Run
+    in a linked copy of the package, the repository untouched."""
+    tree = _linked_package(tmp_path / "tree")
+    whole, parts = tmp_path / "whole.zarr", tmp_path / "parts.zarr"
+    env = {**__import__("os").environ, "PYTHONPATH": str(tree)}
+    code = ("import sys; from gridflow.pipeline import RunOptions, estimate; "
+            "r = estimate(sys.argv[1], sys.argv[2], RunOptions(settings={'sigma': 2.0, "
+            "'window': 9, 'motion': 'affine'}, every=8, limit=int(sys.argv[3]) or None)); "
+            "print(r.skipped, r.done, r.steps)")
+
+    def run(out, limit):
+        r = subprocess.run([sys.executable, "-c", code, str(recording), str(out), str(limit)],
+                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+        return [int(v) for v in r.stdout.split()]
+
+    probe = subprocess.run([sys.executable, "-c", "import gridflow; print(gridflow.__file__)"],
+                           cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert probe.stdout.startswith(str(tree)), probe      # the linked copy is what runs
+    assert run(whole, 0) == [0, 4, 4]
+    assert run(parts, 2) == [0, 2, 4]
+    _edit(tree / "gridflow" / "bench" / "sweep.py", '"""Running a sweep:', '"""A sweep:')
+    _edit(tree / "gridflow" / "estimator" / "driver.py", '"""The public driver',
+          '"""The driver')
+    assert run(parts, 0) == [2, 4, 4]                     # resumed: 2 done before
+    assert _same(_store_arrays(whole), _store_arrays(parts))
+    # a change of the estimator's code is another run: refused, the store kept
+    _edit(tree / "gridflow" / "estimator" / "driver.py",
+          "    return s.window // 2 + get_filter_pair(s.filters).radius",
+          "    return s.window // 2 + get_filter_pair(s.filters).radius + 0")
+    r = subprocess.run([sys.executable, "-c", code, str(recording), str(parts), "0"],
+                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode != 0 and "holds another run's results" in r.stderr, r.stderr
+    assert _same(_store_arrays(whole), _store_arrays(parts))

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gridflow.bench.metrics import evaluate
+from gridflow.metrics import evaluate
 from gridflow.estimator import estimate, estimate_models
 from gridflow.estimator.disentangle import disentangle
 from gridflow.estimator.models import get_model

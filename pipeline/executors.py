@@ -191,7 +191,7 @@ class ClusterError(RuntimeError):
 
 
 def make_client(scheduler: str | None = None, workers: int | None = None, *,
-                timeout: float = 10.0):
+                timeout: float = 10.0, option: str = "--scheduler"):
     """A ``dask.distributed.Client`` for ``scheduler``, or a local cluster of ``workers``.
 
     Parameters
@@ -201,6 +201,8 @@ def make_client(scheduler: str | None = None, workers: int | None = None, *,
     workers : int, optional
         Size of a local cluster (>= 1) when no scheduler is given; its workers are
         single-threaded (:func:`worker_env`).
+    option : str
+        The command-line option that gave ``scheduler``, named in errors.
     timeout : float
         Seconds to wait for the scheduler or the local cluster; after that a
         :class:`ClusterError` (a port that is open but not a dask scheduler does not
@@ -219,7 +221,7 @@ def make_client(scheduler: str | None = None, workers: int | None = None, *,
         raise ClusterError("dask.distributed is not installed: pip install "
                            "'dask[distributed]'") from exc
     if scheduler is not None and not _ADDRESS.fullmatch(scheduler):
-        raise UsageError(f"--scheduler {scheduler!r}: expected an address such as "
+        raise UsageError(f"{option} {scheduler!r}: expected an address such as "
                          "tcp://HOST:8786")
     if scheduler is None and (workers is None or int(workers) < 1):
         raise UsageError(f"--workers must be a positive number of workers, got {workers}")

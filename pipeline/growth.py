@@ -1,0 +1,146 @@
+"""What a grower reads from a map series: the growth per step over the leaf (median,
+mean, spread) and, with a recording that has growth truth, its error; the growth maps at
+chosen frames and the growth against time as figures.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from gridflow.errors import UsageError
+
+__all__ = ["growth_table", "draw_growth"]
+
+
+def growth_table(maps, truth=None, *, quantity: str = "growth"):
+    """Per step of the map series ``maps``: the mean, median, 10th and 90th percentile of
+    ``quantity`` over the interior, and with a recording ``truth`` that has it, the truth's
+    mean and Q_rel (Eq. 22); with a truth, every column is over the interior's pixels where
+    the truth is given (a scene's truth is NaN off the object).  Steps not done are left
+    out.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``step, frame, time_s, mean, median, p10, p90, n_pixels`` (and
+        ``truth, q_rel``).
+    """
+    import pandas as pd
+
+    from gridflow.metrics import q_rel
+    from gridflow.recording import MapStore
+    from gridflow.sources import open_source
+
+    store = MapStore.open(maps)
+    if quantity not in store.quantities:
+        raise UsageError(f"{maps}: holds no {quantity!r} maps (it has "
+                         f"{', '.join(store.quantities)}); growth needs --motion affine")
+    rec = open_source(truth) if truth is not None else None
+    if rec is not None and quantity not in rec.truth_names:
+        raise UsageError(f"{truth}: holds no {quantity!r} truth (it has "
+                         f"{', '.join(rec.truth_names) or 'none'})")
+    g = store.group
+    frames, done = store.frames(), store.done()
+    interior = np.asarray(g["interior"][:], dtype=bool)
+    fi = store.attrs["gridflow"].get("frame_interval")
+    rows = []
+    for i in np.flatnonzero(done):
+        m = np.asarray(g[quantity][i], dtype=np.float64)
+        mask = interior
+        if rec is not None:
+            # where the truth is given (a scene's truth is NaN off the object and near its
+            # edge): the statistics and Q_rel over the same pixels
+            t = rec.truth(int(frames[i]), names=(quantity,))[quantity]
+            mask = interior & np.isfinite(t)
+        v = m[mask & np.isfinite(m)]
+        row = {"step": int(i), "frame": int(frames[i]),
+               "time_s": float(frames[i] * fi) if fi else np.nan,
+               "mean": float(v.mean()) if v.size else np.nan,
+               "median": float(np.median(v)) if v.size else np.nan,
+               "p10": float(np.percentile(v, 10)) if v.size else np.nan,
+               "p90": float(np.percentile(v, 90)) if v.size else np.nan,
+               "n_pixels": int(v.size)}
+        if rec is not None:
+            row["truth"] = float(t[mask].mean()) if mask.any() else np.nan
+            row["q_rel"] = q_rel(m, t, mask)
+        rows.append(row)
+    if not rows:
+        raise UsageError(f"{maps}: no step is done yet")
+    return pd.DataFrame(rows)
+
+
+def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -> list[Path]:
+    """The growth maps at chosen frames (a strip on one colour scale) and the growth over
+    the interior against time: its median (robust to the few pixels where the estimate
+    breaks down, which move the mean), the mean, the 10-90 % spread and the truth where
+    known.
+
+    Returns the files written (``growth_maps.png``, ``growth_series.png``)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from gridflow.io import atomic_write
+    from gridflow.recording import MapStore
+
+    store = MapStore.open(maps)
+    fig_dir = Path(fig_dir)
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    frames = list(table["frame"])
+    if times:
+        missing = [t for t in times if t not in frames]
+        if missing:
+            raise UsageError(f"--times {missing}: no finished step at those frames (steps at "
+                             f"{frames[0]}, {frames[1] if len(frames) > 1 else ''} ... "
+                             f"{frames[-1]})")
+        chosen = list(times)
+    else:
+        chosen = [frames[int(round(j))] for j in np.linspace(0, len(frames) - 1,
+                                                             min(6, len(frames)))]
+    interior = np.asarray(store.group["interior"][:], dtype=bool)
+    per_frame = 100.0          # shown in % per frame
+    imgs = []
+    for f in chosen:
+        i = int(table.loc[table["frame"] == f, "step"].iloc[0])
+        m = np.asarray(store.group[quantity][i], dtype=float) * per_frame
+        imgs.append(np.where(interior, m, np.nan))
+    lo = np.nanpercentile(np.concatenate([m[np.isfinite(m)] for m in imgs]), 1)
+    hi = np.nanpercentile(np.concatenate([m[np.isfinite(m)] for m in imgs]), 99)
+    fi = store.attrs["gridflow"].get("frame_interval")
+    label = (lambda f: f"frame {f} ({f * fi / 3600:.1f} h)") if fi else (lambda f: f"frame {f}")
+    fig, axes = plt.subplots(1, len(chosen), figsize=(2.6 * len(chosen) + 0.8, 3.0),
+                             squeeze=False, constrained_layout=True)
+    for ax, f, m in zip(axes[0], chosen, imgs):
+        im = ax.imshow(m, vmin=lo, vmax=hi, cmap="viridis")
+        ax.set_title(label(f), fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.colorbar(im, ax=axes[0], shrink=0.85, label="growth, % area per frame")
+    fig.suptitle(f"Growth maps ({maps})", fontsize=10)
+    out1 = fig_dir / "growth_maps.png"
+    with atomic_write(out1) as fh:
+        fig.savefig(fh, format="png", dpi=110)
+    plt.close(fig)
+
+    x = table["time_s"] / 3600 if fi else table["frame"]
+    fig, ax = plt.subplots(figsize=(7, 3.6), constrained_layout=True)
+    ax.fill_between(x, table["p10"] * per_frame, table["p90"] * per_frame, alpha=0.3,
+                    color="tab:green", label="10-90 % of the pixels")
+    ax.plot(x, table["median"] * per_frame, color="tab:green", lw=1.5,
+            label="median, estimated")
+    ax.plot(x, table["mean"] * per_frame, color="tab:green", lw=0.8, ls=":",
+            label="mean, estimated")
+    if "truth" in table:
+        ax.plot(x, table["truth"] * per_frame, "k--", lw=1.0, label="truth")
+    ax.set_xlabel("time, h" if fi else "frame")
+    ax.set_ylabel("growth, % area per frame")
+    ax.legend(fontsize=8, loc="best")
+    ax.set_title("Growth over the interior", fontsize=10)
+    out2 = fig_dir / "growth_series.png"
+    with atomic_write(out2) as fh:
+        fig.savefig(fh, format="png", dpi=110)
+    plt.close(fig)
+    return [out1, out2]

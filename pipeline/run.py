@@ -1,0 +1,710 @@
+"""One run from any source to any sink: what ``gridflow estimate INPUT -o OUTPUT`` does.
+
+1. The output's suffix chooses the sink (:func:`gridflow.pipeline.sinks.sink_for`); its
+   name is checked before the input is read.
+2. The input is opened lazily by the one registry of formats
+   (:func:`gridflow.sources.open_source`).
+3. The strategy is chosen (:func:`choose_strategy`): a light field of one frame on a
+   square grid is refocused, a sequence gets the estimator's single pass.
+4. The plan (:func:`plan_run`): the steps (one for an ``.npz``; every K-th frame whose
+   window fits for a map series), each step's window of frames (the strategy's reach,
+   from :func:`gridflow.estimator.temporal_reach`), the row bands (the strategy's halo,
+   from :func:`gridflow.estimator.window_halo`) that fit the memory budget.
+5. Each (step, band) not done yet is a task (:func:`run_step`): read its rows of its
+   frames, estimate, write into the sink; in this process, on Dask's threads, or on a
+   ``dask.distributed`` cluster (``connect``).
+
+A single volume is a recording of one step: the same options and defaults whatever the
+output.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from gridflow.errors import UsageError
+
+from .strategies import Refocus, SinglePass, with_depth
+
+__all__ = ["RunOptions", "RunReport", "Plan", "estimate", "choose_strategy", "plan_run",
+           "run_step", "step_memory", "DEFAULT_MODEL"]
+
+#: the brightness model of a sequence (a light field of one frame: bcc)
+DEFAULT_MODEL = "full"
+
+# bytes the estimator holds per byte of its input window, measured (bench/README.md,
+# *Long recordings*): the window as float64 plus the band's signals and tensor.  A whole
+# step: 3 (the estimator bounds its own bands' tensor, so a large window costs less than
+# in proportion).  A row band: its signals over all its rows at once cost more per byte,
+# 6.5, on top of the process itself (interpreter, libraries, numba's kernels), counted once
+# per task; measured at 512^2 px, 5 x 5 views, 9 frames, one task at a time: 16-row bands
+# 669 MiB (predicted 705), 102-row bands 993 MiB (1196), a whole step 1086 MiB (1575);
+# a tiny step 212 MiB.
+_MEMORY_FACTOR = 3.0
+_BAND_FACTOR = 6.5
+_PROCESS = 0.22 * 2**30
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """What to estimate and where: every option of ``gridflow estimate``, None where not
+    given (the defaults are chosen from the source: :func:`choose_strategy`).
+
+    Attributes
+    ----------
+    models : tuple of str, optional
+        Brightness models; default ``("full",)``, ``("bcc",)`` for a light field of one
+        frame.
+    settings : dict
+        Estimator settings given (:class:`gridflow.estimator.EstimatorSettings`; those
+        not given keep its defaults, whatever the output: ``motion`` ``translation``,
+        the more precise where nothing grows; ``affine`` for growth maps).
+        ``ref_frame``: the one step's frame.
+    every, first, last : int, optional
+        Steps of a map series: every K-th frame from ``first`` to ``last`` (default every
+        frame whose window lies in the source).
+    views : int, optional
+        HCI scenes: the central views used.
+    shears : None, "auto", "none" or sequence of int
+        Light fields of one frame (:func:`choose_strategy`).
+    select : str, optional
+    fill : bool, optional
+    median : int, optional
+        Refocusing (:func:`gridflow.estimator.lightfield.estimate_refocused`).
+    workers : int, optional
+        Tasks at once on this machine.
+    memory : float, optional
+        Memory budget, GiB.
+    band_rows : int, optional
+        Rows per band.
+    connect : str, optional
+        A ``dask.distributed`` scheduler address.
+    progress : bool
+        Messages before long steps and a progress bar, on stderr.
+    limit : int, optional
+        Stop after this many tasks (tests of resuming).
+    """
+
+    models: tuple | None = None
+    settings: dict = field(default_factory=dict)
+    every: int | None = None
+    first: int | None = None
+    last: int | None = None
+    views: int | None = None
+    shears: object = None
+    select: str | None = None
+    fill: bool | None = None
+    median: int | None = None
+    workers: int | None = None
+    memory: float | None = None
+    band_rows: int | None = None
+    connect: str | None = None
+    progress: bool = False
+    limit: int | None = None
+
+
+@dataclass
+class RunReport:
+    """What :func:`estimate` did.
+
+    Attributes
+    ----------
+    lines : list of str
+        What to print.
+    seconds : float
+        Wall time of the estimates.
+    steps : int
+        Steps in the run.
+    skipped : int
+        Steps done by an earlier run and kept.
+    done : int
+        Steps done in the output now.
+    now : float
+        Steps estimated by this call.
+    """
+
+    lines: list = field(default_factory=list)
+    seconds: float = 0.0
+    steps: int = 0
+    skipped: int = 0
+    done: int = 0
+    now: float = 0.0
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A run's steps, windows and bands (small, picklable apart from ``source``).
+
+    Attributes
+    ----------
+    source : gridflow.sources.Source
+    strategy : SinglePass or Refocus
+    frames : tuple of int
+        The frame of each step.
+    windows : tuple of (int, int)
+        Each step's frames ``lo .. hi - 1``.
+    bands : tuple of (int, int)
+        Row bands ``(r0, r1)``.
+    halo : int
+        Rows either side of a band its estimate reads.
+    reach : int
+        Frames either side of a step its estimate reads, where the source has them.
+    """
+
+    source: object
+    strategy: object
+    frames: tuple
+    windows: tuple
+    bands: tuple
+    halo: int
+    reach: int
+
+    def stamp(self, i: int) -> int:
+        lo, hi = self.windows[i]
+        return self.source.stamp(lo, hi)
+
+
+def _say(progress: bool, text: str) -> None:
+    if progress:
+        print(text, file=sys.stderr, flush=True)
+
+
+def _square(rows: int, cols: int) -> bool:
+    """A grid refocusing can use: square, with an odd number of views, at least 3."""
+    return rows == cols and rows % 2 == 1 and rows >= 3
+
+
+def _views_used(n: int, select: str) -> str:
+    """Which of an n x n grid's views a refocusing choice reads (its default sub-grids)."""
+    if select == "lines":
+        return f"the centre row and column, {2 * n - 1} views"
+    if select == "occlusion":
+        m = min(5, n)
+        return f"{m}x{m} sub-grids at the centre, edges and corners, {n * n} views"
+    return f"all {n * n} views"
+
+
+# settings that only the estimator's single pass over a volume uses: refused where a
+# light field is refocused, instead of being ignored
+_SINGLE_PASS_ONLY = {"temporal_radius": "--temporal-radius", "ref_frame": "--ref-frame",
+                     "method": "--method", "slant_correction": "--no-slant-correction",
+                     "zoom_correction": "--no-zoom-correction",
+                     "combine": "--combine", "motion": "--motion"}
+
+
+def choose_strategy(source, o: RunOptions) -> tuple[object, list[str]]:
+    """The single pass or refocusing, with the defaults that fit ``source``.
+
+    A light field of one frame on a square grid (an HCI scene, a static camera-grid
+    folder, a one-frame volume) is refocused unless ``shears="none"``: over the disparity
+    range its ``parameters.cfg`` states, else one estimated from the data; a sequence
+    gets the estimator's single pass.
+
+    Returns
+    -------
+    strategy : SinglePass or Refocus
+    notes : list of str
+        Lines to report (why not refocused, the disparity range used).
+    """
+    T, gr, gc = source.shape[:3]
+    settings = dict(o.settings)
+    refocus_given = [flag for flag, given in (("--select", o.select is not None),
+                                              ("--median", o.median is not None),
+                                              ("--no-fill", o.fill is False)) if given]
+    single_pass = o.shears == "none"
+    refocus = not single_pass and (o.shears is not None or (T == 1 and _square(gr, gc)))
+    notes = []
+    path = source.path
+    if o.shears is None and not refocus and T == 1:
+        notes.append(f"not refocused: {path} is a {gr}x{gc} grid (refocusing needs a square "
+                     "grid with an odd number of views); the single pass")
+    if not refocus and refocus_given:
+        why = ("--shears none asks for the single pass" if single_pass else
+               f"{path} has {T} frames" if T > 1 else f"{path} is a {gr}x{gc} grid")
+        raise UsageError(f"{', '.join(refocus_given)}: refocusing only; {why}, so the "
+                         "estimator's single pass runs")
+    if refocus:
+        return _refocus_strategy(source, o, settings, notes)
+    models = o.models or (("bcc",) if T == 1 else (DEFAULT_MODEL,))
+    return SinglePass(tuple(models), settings), notes
+
+
+def _refocus_strategy(source, o: RunOptions, settings: dict, notes: list):
+    from gridflow.estimator import DEFAULTS, InputError
+    from gridflow.estimator.lightfield import (SELECT_DEFAULTS, SELECTS, check_shears,
+                                              estimate_shear_range, stated_shears)
+    from gridflow.errors import FileFormatError
+
+    path = source.path
+    T, n, m = source.shape[:3]
+    if T != 1:
+        raise UsageError(f"--shears refocuses a light field of one frame; {path} has "
+                         f"{T} frames")
+    if o.models not in (None, ("bcc",)):
+        raise UsageError(f"a light field of one frame is refocused with model bcc, got "
+                         f"--model {','.join(o.models)} (--shears none: the single pass)")
+    given = [flag for key, flag in _SINGLE_PASS_ONLY.items() if key in settings
+             and not (key == "motion" and settings[key] == "translation")
+             and not (key in ("slant_correction", "zoom_correction") and settings[key])]
+    if given:
+        raise UsageError(f"{', '.join(given)}: the estimator's single pass only; a light "
+                         f"field of one frame ({path}) is refocused (--shears none: the "
+                         "single pass)")
+    if not _square(n, m):
+        raise UsageError(f"--shears needs a square grid with an odd number of views (at "
+                         f"least 3), {path} has {n}x{m}")
+    select = SELECTS[0] if o.select is None else o.select
+    filters = settings.get("filters", DEFAULTS["filters"])
+    H, W = source.shape[3:]
+    shears = "auto" if o.shears is None else o.shears
+    hci = source.meta.get("hci")
+    if shears == "auto":
+        stated = (hci or {}).get("disp_range")
+        try:
+            shears = stated_shears(stated)
+            if shears is not None:
+                check_shears(shears, n, H, W, what="the stated disparity range")
+        except InputError as e:
+            raise FileFormatError(f"{Path(path) / 'parameters.cfg'}: [meta] disp_min, "
+                                  f"disp_max: {e}") from None
+        if shears is not None:
+            notes.append(f"disparity range {stated[0]:g} .. {stated[1]:g} px per view, as "
+                         f"{path} states (parameters.cfg)")
+        else:
+            _say(o.progress, f"{path} states no disparity range: a coarse pass estimates "
+                 "it ...")
+            shears, info = estimate_shear_range(source.read(0, 1)[0], filters=filters)
+            check_shears(shears, n, H, W, what="the disparity range estimated from the data")
+            notes.append(f"disparity range {info['lo']:.2f} .. {info['hi']:.2f} px per view, "
+                         f"estimated from the data (coarse pass at 1/{info['k']} resolution; "
+                         "none stated: --shears MIN MAX to give one)")
+    else:
+        try:
+            check_shears(shears, n, H, W, what="--shears")
+        except InputError as e:
+            raise UsageError(str(e)) from None
+    sigma = settings.get("sigma")
+    window = settings.get("window")
+    return Refocus(tuple(int(s) for s in shears), select,
+                   SELECT_DEFAULTS[select][0] if sigma is None else sigma,
+                   SELECT_DEFAULTS[select][1] if window is None else window, filters,
+                   True if o.fill is None else o.fill,
+                   3 if o.median is None else o.median), notes
+
+
+def _steps(source, strategy, o: RunOptions, sink) -> tuple[tuple, tuple]:
+    """The steps' frames and windows.  One step (an ``.npz``, or ``ref_frame`` given): at
+    the given or stated reference frame, its window cut to the frames there are.  A map
+    series: every ``every``-th frame from ``first`` to ``last``, each with its whole
+    window."""
+    T = source.frames
+    reach = strategy.reach
+    ref = strategy.settings.get("ref_frame") if isinstance(strategy, SinglePass) else None
+    series_given = [f for f, v in (("--every", o.every), ("--first", o.first),
+                                   ("--last", o.last)) if v is not None]
+    if ref is not None and series_given:
+        raise UsageError(f"--ref-frame and {', '.join(series_given)}: --ref-frame asks for "
+                         "one step at that frame, the others for a series of steps")
+    if sink.max_steps == 1 and series_given:
+        raise UsageError(f"{', '.join(series_given)}: for a series of steps (-o MAPS.zarr); "
+                         f"-o {sink.output} holds one step (--ref-frame chooses its frame)")
+    if sink.max_steps == 1 or ref is not None or T == 1:
+        k = ref if ref is not None else (source.ref_frame if source.ref_frame is not None
+                                         else (T - 1) // 2)
+        if not 0 <= k < T:
+            raise UsageError(f"--ref-frame {k}: {source.path} has frames 0..{T - 1}")
+        return (k,), ((max(0, k - reach), min(T, k + reach + 1)),)
+    lo, hi = reach, T - 1 - reach
+    if hi < lo:
+        radius = strategy.settings.get("temporal_radius")
+        raise UsageError(f"{source.path}: {T} frames; a step needs {2 * reach + 1} (its "
+                         f"temporal window {2 if radius is None else radius} and the filters "
+                         "either side)")
+    every = 1 if o.every is None else o.every
+    first = lo if o.first is None else int(o.first)
+    last = hi if o.last is None else int(o.last)
+    if not lo <= first <= last <= hi:
+        raise UsageError(f"steps from frame {first} to {last}: expected {lo} <= first <= "
+                         f"last <= {hi} (the frames whose window lies in the recording)")
+    frames = tuple(range(first, last + 1, every))
+    return frames, tuple((k - reach, k + reach + 1) for k in frames)
+
+
+def step_memory(shape, window_frames: int, rows: int | None = None, halo: int = 0) -> int:
+    """Bytes one task needs: the process plus, for a whole step, its window of
+    ``window_frames`` frames of a source of ``shape`` ``(T, Sy, Sx, H, W)`` as float64
+    times the estimator's factor, or with ``rows`` (fewer than the image's), the window
+    of a band of that many rows and ``halo`` rows either side times the band factor (the
+    constants above, measured)."""
+    T, Sy, Sx, H, W = shape
+    per_row = window_frames * Sy * Sx * W * 8
+    if rows is None or rows >= H:
+        return int(_PROCESS + per_row * H * _MEMORY_FACTOR)
+    return int(_PROCESS + per_row * min(H, rows + 2 * halo) * _BAND_FACTOR)
+
+
+def _budget(memory: float | None) -> int:
+    from gridflow.volume import physical_memory
+
+    if memory is not None:
+        if not (isinstance(memory, (int, float)) and math.isfinite(memory) and memory > 0):
+            raise UsageError(f"--memory must be a positive finite number of GiB, got "
+                             f"{memory!r}")
+        have = physical_memory()
+        if have and memory * 2**30 > 64 * have:
+            raise UsageError(f"--memory {memory:g} GiB: more than 64 times this machine's "
+                             f"{have / 2**30:.1f} GiB; give the budget the steps may use")
+        return int(memory * 2**30)
+    have = physical_memory()
+    return int(0.5 * have) if have else 4 * 2**30
+
+
+def _band_rows(shape, window_frames: int, halo, o: RunOptions, budget: int) -> int:
+    """Rows per band: all (one band) where a step fits the budget or the strategy needs
+    whole images; else the widest bands that fit (``band_rows`` chooses them instead)."""
+    T, Sy, Sx, H, W = shape
+    if halo is None:
+        if o.band_rows is not None:
+            raise UsageError("--band-rows: a refocused light field is estimated whole")
+        return H
+    if o.band_rows is not None:
+        return min(int(o.band_rows), H)
+    if step_memory(shape, window_frames) <= budget:
+        return H
+    per_row = window_frames * Sy * Sx * W * 8 * _BAND_FACTOR
+    rows = int((budget - _PROCESS) // per_row) - 2 * halo
+    if rows <= halo:
+        raise UsageError(
+            f"even a band of {halo + 1} rows (and the {halo} rows either side its estimate "
+            f"reads) of {window_frames} frames of {Sy}x{Sx} views of {W} px needs about "
+            f"{step_memory(shape, window_frames, halo + 1, halo) / 2**30:.2f} GiB, more than "
+            f"the memory budget {budget / 2**30:.2f} GiB (--memory GIB)")
+    return rows
+
+
+def plan_run(source, strategy, o: RunOptions, sink) -> Plan:
+    """The steps, windows and bands of a run (nothing is read or written)."""
+    frames, windows = _steps(source, strategy, o, sink)
+    halo = strategy.halo
+    n = max(hi - lo for lo, hi in windows)
+    rows = _band_rows(source.shape, n, halo, o, _budget(o.memory))
+    H = source.shape[3]
+    bands = tuple((r0, min(r0 + rows, H)) for r0 in range(0, H, rows))
+    return Plan(source, strategy, frames, windows, bands, halo or 0, strategy.reach)
+
+
+def _crop(ests: dict, rows: slice, settings: dict) -> dict:
+    from gridflow.estimator import Estimate
+
+    return {m: Estimate({q: v[rows] for q, v in e.items()}, e.model, e.interior[rows],
+                        {**e.settings, **settings}) for m, e in ests.items()}
+
+
+def estimate_step(plan: Plan, i: int, b: int, progress=None) -> tuple[dict, int]:
+    """Estimate band ``b`` of step ``i``: ``({model: Estimate} of the band's rows, the
+    stamp of the frames read)``.  Reads only the step's window of frames, and of them
+    only the band's rows and ``plan.halo`` rows either side, so that the band's maps are
+    those of the whole image (the estimate at a pixel reads no farther)."""
+    from gridflow.estimator import Estimate, InputError
+
+    src = plan.source
+    lo, hi = plan.windows[i]
+    k = plan.frames[i]
+    # the stamp before the read: a frame replaced during the read makes the next run
+    # redo this step rather than keep it
+    stamp = src.stamp(lo, hi)
+    H, W = src.shape[3:]
+    r0, r1 = plan.bands[b]
+    halo = plan.halo
+    if len(plan.bands) > 1 and (r1 <= halo or r0 >= H - halo):
+        # a band within the image's border: no pixel there has a whole window
+        names = plan.strategy.quantities(src.shape[1:3])
+        nan = {m: Estimate({q: np.full((r1 - r0, W), np.nan) for q in qs}, m,
+                           np.zeros((r1 - r0, W), dtype=bool)) for m, qs in names.items()}
+        return nan, stamp
+    a0, a1 = (max(0, r0 - halo), min(H, r1 + halo)) if len(plan.bands) > 1 else (0, H)
+    window = src.read(lo, hi, rows=(a0, a1))
+    try:
+        ests = plan.strategy.run(window, src.geometry.for_rows(a0), k - lo, progress)
+    except InputError as exc:
+        where = (f"frames {lo}..{hi - 1} (step at frame {k})" if src.frames > 1 else "")
+        text = str(exc)
+        if str(src.path) not in text:
+            text = f"{src.path}: {where + ': ' if where else ''}{text}"
+        raise InputError(text) from None
+    ests = with_depth(ests, src.meta.get("hci"))
+    # the reference frame as the source counts its frames, not the window
+    fix = {"ref_frame": k} if isinstance(plan.strategy, SinglePass) else {}
+    return _crop(ests, slice(r0 - a0, r1 - a0), fix), stamp
+
+
+@lru_cache(maxsize=4)
+def _opened(source: str, views, sink_spec: str):
+    """The source and the sink's stores, opened once per worker process and run."""
+    import json
+
+    from gridflow.recording import MapStore
+    from gridflow.sources import open_source
+
+    spec = json.loads(sink_spec)
+    stores = {m: MapStore.reopen(p, spec["keys"][m]) for m, p in spec["outputs"].items()}
+    return open_source(source, views=views), stores
+
+
+def run_step(job: dict, i: int, b: int) -> dict:
+    """A task on a worker: estimate band ``b`` of step ``i`` of the run ``job`` (paths,
+    strategy and plan, no data) and write it into the map series; returns its timing."""
+    import json
+
+    try:
+        import numba
+
+        numba.set_num_threads(max(1, min(job["threads"], numba.config.NUMBA_NUM_THREADS)))
+    except ImportError:
+        pass
+    t0 = time.perf_counter()
+    source, stores = _opened(job["source"], job["views"], json.dumps(job["sink"],
+                                                                      sort_keys=True))
+    plan = replace(job["plan"], source=source)
+    ests, stamp = estimate_step(plan, i, b)
+    t1 = time.perf_counter()
+    for m, store in stores.items():
+        e = ests[m]
+        store.write_band(i, b, {q: e[q] for q in store.quantities}, e.interior, stamp)
+    return {"step": i, "band": b, "estimate_s": t1 - t0, "write_s": time.perf_counter() - t1}
+
+
+def _local(plan: Plan, o: RunOptions) -> tuple[int, int, int]:
+    """(tasks at once, numba threads each, budget bytes) on this machine."""
+    cores = os.cpu_count() or 1
+    budget = _budget(o.memory)
+    n = o.workers if o.workers is not None else cores
+    if not (isinstance(n, int) and n >= 1):
+        raise UsageError(f"--workers must be a positive number, got {o.workers!r}")
+    r0, r1 = plan.bands[0]
+    frames = max(hi - lo for lo, hi in plan.windows)
+    need = step_memory(plan.source.shape, frames, r1 - r0, plan.halo)
+    if need > budget:
+        T, Sy, Sx, H, W = plan.source.shape
+        raise UsageError(f"a band of {r1 - r0} rows needs about {need / 2**30:.2f} GiB ("
+                         f"{frames} frames of {Sy}x{Sx} views of {W} px, {plan.halo} rows "
+                         f"either side), more than the memory budget {budget / 2**30:.2f} "
+                         "GiB (--memory GIB, --band-rows)")
+    n = max(1, min(n, budget // need))
+    return n, max(1, cores // n), budget
+
+
+def _check_options(o: RunOptions) -> None:
+    for name, v in (("--every", o.every), ("--band-rows", o.band_rows),
+                    ("--workers", o.workers)):
+        if v is not None and not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+            raise UsageError(f"{name} must be a positive integer, got {v!r}")
+    if o.connect is not None and (o.workers is not None or o.memory is not None):
+        given = [f for f, v in (("--workers", o.workers), ("--memory", o.memory)) if v]
+        raise UsageError(f"{', '.join(given)}: for this machine's own tasks; with "
+                         "--connect the cluster's workers decide")
+    if o.memory is not None:
+        _budget(o.memory)
+
+
+def estimate(input, output, options: RunOptions | None = None) -> RunReport:
+    """Estimate the source ``input`` into the sink ``output``: the one pipeline behind
+    ``gridflow estimate`` (module docstring).
+
+    Parameters
+    ----------
+    input : path
+        Any source :func:`gridflow.sources.open_source` opens: a volume ``.npz``, a
+        camera-grid folder, an HCI scene folder, a recording store.
+    output : path
+        ``.npz``: one step, one file per model (``_MODEL`` before the suffix for
+        several); ``.zarr``: a map series per model, resumable.
+    options : RunOptions
+
+    Returns
+    -------
+    RunReport
+    """
+    from gridflow.sources import open_source
+
+    from .sinks import sink_for
+
+    o = options or RunOptions()
+    settings = {k: v for k, v in o.settings.items() if v is not None}
+    o = replace(o, settings=settings)
+    _check_options(o)
+    # the outputs are checked before the input is read (a bad name, an unwritable folder
+    # or a name too long must not cost the decoding of a scene); again once the models
+    # are known
+    sink = sink_for(output, o.models or ("full",), inputs=[input])
+    views = o.views
+    if views is None and (o.shears == "none" or o.select == "coarse"):
+        # what the 5-tap camera filters reach; refocusing's sub-grids use all views
+        from gridflow.hci import is_hci_scene
+
+        views = 5 if is_hci_scene(input) else None
+    source = open_source(input, views=views)
+    strategy, notes = choose_strategy(source, o)
+    sink = sink_for(output, strategy.models, inputs=[input])
+    plan = plan_run(source, strategy, o, sink)
+    sink.prepare(plan)
+    todo, changed, kept = sink.todo(plan)
+    if o.limit is not None:
+        todo = todo[:o.limit]
+    report = RunReport(lines=notes, steps=len(plan.frames), skipped=kept)
+    if kept:
+        _say(o.progress, f"{output}: {kept} of {len(plan.frames)} steps already done, "
+             "resuming")
+    if changed:
+        _say(o.progress, f"{output}: {len(changed)} done step(s) read frames that changed "
+             "since; estimating them again")
+    t0 = time.perf_counter()
+    if sink.max_steps == 1:
+        _run_here(plan, sink, todo, o)
+        report.now = report.done = len(plan.frames)
+    else:
+        _run_tasks(plan, sink, todo, o, views, report)
+    report.seconds = time.perf_counter() - t0
+    report.lines += sink.close()
+    report.lines += _summary(plan, sink, o, report, changed, output)
+    return report
+
+
+def _run_here(plan: Plan, sink, todo, o: RunOptions) -> None:
+    """One step in this process (an ``.npz``), with a bar over the shears when
+    refocusing."""
+    bar = None
+    s = plan.strategy
+    T, Sy, Sx, H, W = plan.source.shape
+    if isinstance(s, Refocus):
+        _say(o.progress, f"refocusing {Sy}x{Sx} views ({_views_used(Sy, s.select)}) over "
+             f"shears {s.shears[0]} .. {s.shears[-1]} ({s.select}; sigma {s.sigma:g} px, "
+             f"{s.window} taps) ...")
+        if o.progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=len(s.shears), unit="shear", file=sys.stderr, leave=False)
+
+    def step(done, total):
+        if bar is not None:
+            bar.update(done - bar.n)
+
+    try:
+        for i, b in todo:
+            ests, stamp = estimate_step(plan, i, b, progress=step)
+            sink.write(i, b, ests, stamp)
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _run_tasks(plan: Plan, sink, todo, o: RunOptions, views, report: RunReport) -> None:
+    """The (step, band) tasks of a map series, on Dask (local threads or a cluster)."""
+    import dask
+
+    T, Sy, Sx, H, W = plan.source.shape
+    nb = len(plan.bands)
+    job = {"source": str(Path(plan.source.path).resolve()), "views": views,
+           "sink": sink.spec(), "plan": replace(plan, source=None), "threads": 1}
+    if o.connect:
+        from .executors import make_client
+
+        client = make_client(scheduler=o.connect, option="--connect")
+        where = f"the dask cluster at {o.connect}"
+        n = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
+    else:
+        n, threads, budget = _local(plan, o)
+        job["threads"] = threads
+        unit = "step" if nb == 1 else "band"
+        where = (f"this machine: {n} {unit}(s) at once, {threads} numba thread(s) each, "
+                 f"memory budget {budget / 2**30:.1f} GiB")
+    cut = "" if nb == 1 else f", each in {nb} row bands of {plan.bands[0][1]} rows"
+    frames = max(hi - lo for lo, hi in plan.windows)
+    _say(o.progress, f"{len({i for i, _ in todo})} steps ({frames} frames of {Sy}x{Sx} "
+         f"views of {W}x{H} px each{cut}) on {where} ...")
+    report.lines.append(f"ran on {where}")
+    bar = None
+    if o.progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(plan.frames) * nb, initial=len(plan.frames) * nb - len(todo),
+                   unit="step" if nb == 1 else "band", file=sys.stderr, dynamic_ncols=True)
+    finished = 0
+    try:
+        if o.connect:
+            from dask.distributed import as_completed
+
+            futs = [client.submit(run_step, job, i, b, pure=False) for i, b in todo]
+            try:
+                for fut in as_completed(futs):
+                    fut.result()
+                    finished += 1
+                    if bar is not None:
+                        bar.update(1)
+            except BaseException:
+                client.cancel(futs)
+                raise
+            finally:
+                client.close()
+        else:
+            from dask.callbacks import Callback
+
+            class Tick(Callback):
+                def _posttask(self, key, result, dsk, state, worker_id):
+                    nonlocal finished
+                    finished += 1
+                    if bar is not None:
+                        bar.update(1)
+
+            tasks = [dask.delayed(run_step, pure=False)(job, i, b) for i, b in todo]
+            with Tick():
+                dask.compute(*tasks, scheduler="threads", num_workers=n)
+    finally:
+        if bar is not None:
+            bar.close()
+    report.now = finished / nb
+
+
+def _summary(plan: Plan, sink, o: RunOptions, report: RunReport, changed, output) -> list:
+    s = plan.strategy
+    T, Sy, Sx, H, W = plan.source.shape
+    if isinstance(s, Refocus):
+        est = sink.ests["bcc"] if sink.max_steps == 1 else None
+        if est is None:
+            return [f"wrote {output}: refocused over shears {list(s.shears)} ({s.select})"]
+        d = est["disparity"]
+        filled = est["filled"] > 0
+        valid = est.interior & ~filled
+        n_none = int((~np.isfinite(d)).sum())
+        return [f"wrote {output}: {Sy}x{Sx} views ({_views_used(Sy, s.select)}) refocused "
+                f"over shears {list(s.shears)} ({s.select}); {int(valid.sum())} of {d.size} "
+                f"pixels estimated, {int(filled.sum())} filled from their neighbours "
+                f"('filled'), {n_none} without a value",
+                f"estimated in {report.seconds:.2f} s"]
+    if sink.max_steps == 1:
+        backend = next(iter(sink.ests.values())).settings["backend"]
+        method = s.settings.get("method", "fast")
+        return [f"estimated {', '.join(s.models)} (motion {s.motion}) in "
+                f"{report.seconds:.2f} s (method {method}: the {backend} backend; {Sy}x{Sx} "
+                f"views, {T} frames)"]
+    lines = []
+    if changed:
+        lines.append(f"{len(changed)} step(s) estimated again: frames they read changed "
+                     f"since (steps at frames {[plan.frames[i] for i in changed][:5]}...)")
+    report.done = done_now = sink.done_steps()
+    rate = report.now / report.seconds if report.seconds > 0 else float("nan")
+    names = ", ".join(str(p) for p in sink.outputs.values())
+    lines.append(f"wrote {names}: {done_now} of {len(plan.frames)} steps done "
+                 f"({report.now:g} now in {report.seconds:.1f} s, {rate:.3f} steps/s; "
+                 f"{report.skipped} done by an earlier run); model {', '.join(s.models)}, "
+                 f"motion {getattr(s, 'motion', 'translation')}; open with "
+                 f"xarray.open_zarr('{next(iter(sink.outputs.values()))}')")
+    return lines

@@ -1,0 +1,151 @@
+"""How one step of a source is estimated: the estimator's single pass, or a static light
+field refocused over integer shears.  Both take a window of frames and give
+``{model: Estimate}``; the pipeline (:mod:`gridflow.pipeline.run`) and the sinks do not
+care which ran.
+
+A strategy states what the planner needs without re-deriving the estimator's rules: the
+frames either side of a step it reads (:attr:`reach`, from
+:func:`gridflow.estimator.temporal_reach`), the rows either side of a row band
+(:attr:`halo`, from :func:`gridflow.estimator.window_halo`; None where only whole images
+can be estimated) and the maps it writes (:meth:`quantities`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gridflow.estimator import Estimate, EstimatorSettings
+from gridflow.volume import CameraGeometry
+
+__all__ = ["SinglePass", "Refocus", "with_depth"]
+
+
+@dataclass(frozen=True)
+class SinglePass:
+    """The estimator's single pass over a window of frames (:func:`gridflow.estimator.
+    estimate_models`), several brightness models sharing one structure tensor.
+
+    Attributes
+    ----------
+    models : tuple of str
+        Brightness models (:data:`gridflow.estimator.MODELS`).
+    settings : dict
+        Estimator settings (:class:`gridflow.estimator.EstimatorSettings`; ``ref_frame``
+        is set per step).
+    """
+
+    models: tuple
+    settings: dict = field(default_factory=dict)
+
+    name = "single pass"
+
+    def __post_init__(self):
+        # bad settings fail before any data is read
+        EstimatorSettings(**{k: v for k, v in self.settings.items() if k != "ref_frame"})
+
+    @property
+    def estimator_settings(self) -> EstimatorSettings:
+        return EstimatorSettings(**{k: v for k, v in self.settings.items()
+                                    if k != "ref_frame"})
+
+    @property
+    def reach(self) -> int:
+        from gridflow.estimator import temporal_reach
+
+        return temporal_reach(self.estimator_settings)
+
+    @property
+    def halo(self) -> int:
+        from gridflow.estimator import window_halo
+
+        return window_halo(self.estimator_settings)
+
+    @property
+    def motion(self) -> str:
+        return self.estimator_settings.motion
+
+    def quantities(self, grid) -> dict[str, list[str]]:
+        """The maps each model writes on a ``(Sy, Sx)`` grid, ``model_error`` last."""
+        from gridflow.estimator.models import get_model
+
+        dims = 1 if grid[0] == 1 else 2
+        return {m: list(get_model(m, dims, motion=self.motion).outputs) + ["model_error"]
+                for m in self.models}
+
+    def run(self, window: np.ndarray, geometry: CameraGeometry, ref: int,
+            progress=None) -> dict[str, Estimate]:
+        """Estimate at frame ``ref`` of ``window`` ``(T, Sy, Sx, H, W)``."""
+        from gridflow.estimator import estimate_models
+
+        return estimate_models(window, geometry.focal_length, geometry.camera_spacing,
+                               models=self.models, principal_point=geometry.principal_point,
+                               **{**self.settings, "ref_frame": ref})
+
+
+@dataclass(frozen=True)
+class Refocus:
+    """A static light field refocused over integer shears (:func:`gridflow.estimator.
+    lightfield.estimate_refocused`): model ``bcc``, whole images only.
+
+    Attributes
+    ----------
+    shears : tuple of int
+        The shears (px per view).
+    select, sigma, window, filters, fill, median
+        As :func:`gridflow.estimator.lightfield.estimate_refocused`.
+    """
+
+    shears: tuple
+    select: str
+    sigma: float
+    window: int
+    filters: str
+    fill: bool = True
+    median: int = 3
+
+    name = "refocused"
+    models = ("bcc",)
+    reach = 0
+    halo = None           # the choice, the fill and the median reach across the image
+
+    def quantities(self, grid) -> dict[str, list[str]]:
+        return {"bcc": ["disparity", "Z", "model_error", "confidence", "shear", "filled"]}
+
+    def run(self, window: np.ndarray, geometry: CameraGeometry, ref: int,
+            progress=None) -> dict[str, Estimate]:
+        """Refocus the views of frame ``ref`` of ``window``; ``Z`` from the disparity for
+        parallel cameras (:func:`with_depth` replaces it where the source knows better)."""
+        from gridflow.estimator.lightfield import estimate_refocused
+
+        est = estimate_refocused(window[ref], self.shears, sigma=self.sigma,
+                                 window=self.window, filters=self.filters,
+                                 select=self.select, fill=self.fill, median=self.median,
+                                 progress=progress)
+        # parallel cameras: disparity = -v ds_x with v = -f / Z
+        with np.errstate(divide="ignore", invalid="ignore"):
+            Z = geometry.focal_length * geometry.camera_spacing[0] / est["disparity"]
+        maps = {"disparity": est["disparity"], "Z": Z,
+                **{k: est[k] for k in ("model_error", "confidence", "shear", "filled")}}
+        return {"bcc": Estimate(maps, "bcc", est.interior,
+                                {**est.settings, "Z_units": geometry.units})}
+
+
+def with_depth(ests: dict[str, Estimate], hci: dict | None) -> dict[str, Estimate]:
+    """Where the source is an HCI scene with its geometry (converging cameras), ``Z`` in
+    metres from the disparity and the focus distance; the slopes stay those of the
+    parallel-camera reading (camera steps as the unit of length)."""
+    if not hci:
+        return ests
+    from gridflow.hci import depth_from_disparity
+
+    out = {}
+    for m, est in ests.items():
+        if "disparity" not in est:
+            out[m] = est
+            continue
+        maps = {**est.maps, "Z": depth_from_disparity(est["disparity"], hci)}
+        out[m] = Estimate(maps, est.model, est.interior,
+                          {**est.settings, "Z_units": "m (HCI geometry)"})
+    return out

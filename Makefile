@@ -56,8 +56,8 @@ env: $(STAMP) $(KERNELS)
 # what a sweep's rows depend on (the modules its resume key fingerprints); the CLI is not
 # among them: it only parses and prints
 NUMERICS  := $(wildcard estimator/*.py generators/*.py) base/volume.py base/io.py \
-             base/errors.py base/metrics.py bench/spec.py bench/sweep.py pipeline/executors.py \
-             bench/setups.py
+             base/errors.py base/metrics.py bench/spec.py bench/sweep.py pipeline/__init__.py \
+             pipeline/executors.py bench/setups.py
 SWEEP_CSV := results/sweep_paper.csv
 SETUP_CSV := results/sweep_paper_setup.csv
 GROWTH_CSV := results/sweep_growth.csv

@@ -47,7 +47,8 @@ QUANTITY_ORDER = ["Z", "Zx", "Zy", "Ux", "Uy", "Uz", "growth", "rotation", "Zx_t
 # the library versions) keys a finished point, so a changed module is never mixed in
 _ROW_SOURCES = ("gridflow.estimator", "gridflow.generators", "gridflow.volume", "gridflow.io",
                 "gridflow.errors", "gridflow.bench.spec", "gridflow.bench.sweep",
-                "gridflow.pipeline.executors", "gridflow.metrics", "gridflow.bench.setups")
+                "gridflow.pipeline", "gridflow.pipeline.executors", "gridflow.metrics",
+                "gridflow.bench.setups")
 
 
 class SweepInterrupted(RuntimeError):

@@ -14,15 +14,22 @@ This package imports the estimator and the formats (``gridflow``), never the ben
 (:mod:`gridflow.bench`), which builds on it.
 """
 
-from .run import RunOptions, RunReport, estimate
-
 __all__ = ["estimate", "RunOptions", "RunReport", "growth_table", "draw_growth"]
+
+# names imported on first use (PEP 562): importing one part (the executors, which the
+# benchmark's sweeps use) does not import the others, nor the growth report's pandas and
+# matplotlib
+_WHERE = {"estimate": "run", "RunOptions": "run", "RunReport": "run",
+          "growth_table": "growth", "draw_growth": "growth"}
 
 
 def __getattr__(name):
-    # the report's pandas and matplotlib only when asked for
-    if name in ("growth_table", "draw_growth"):
-        from . import growth
+    if name in _WHERE:
+        import importlib
 
-        return getattr(growth, name)
+        return getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_WHERE))

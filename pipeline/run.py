@@ -435,7 +435,8 @@ def estimate_step(plan: Plan, i: int, b: int, progress=None) -> tuple[dict, int]
     try:
         ests = plan.strategy.run(window, src.geometry.for_rows(a0), k - lo, progress)
     except InputError as exc:
-        where = (f"frames {lo}..{hi - 1} (step at frame {k})" if src.frames > 1 else "")
+        where = (f"frames {lo}..{hi - 1} (step at frame {k})" if (lo, hi) != (0, src.frames)
+                 else "")
         text = str(exc)
         if str(src.path) not in text:
             text = f"{src.path}: {where + ': ' if where else ''}{text}"

@@ -82,8 +82,8 @@ def _fifo(path: Path) -> Path:
     (lambda d, v: v, "is an input of this command"),                        # -o the input
     (lambda d, v: _fifo(d / "pipe.npz"), "not a regular file"),             # a FIFO
     (lambda d, v: (d / "dir.npz").mkdir() or d / "dir.npz", "not a regular file"),
-    (lambda d, v: d / "est.txt", "expected a .npz file name"),
-    (lambda d, v: d / "est", "expected a .npz file name"),
+    (lambda d, v: d / "est.txt", "expected an estimate .npz (one step) or a map series .zarr"),
+    (lambda d, v: d / "est", "expected an estimate .npz (one step) or a map series .zarr"),
     (lambda d, v: (d / "link.npz").symlink_to(v) or d / "link.npz", "not a regular file"),
     (lambda d, v: ((d / "afile").write_text("x"), d / "afile" / "e.npz")[1], "not a folder"),
 ])
@@ -717,12 +717,12 @@ def test_a_killed_render_leaves_nothing_behind(tmp_path):
 def _input_never_read(monkeypatch):
     """Make reading any input fail loudly: an output check that comes after the read shows
     up as this error instead of the expected message."""
-    import gridflow.bench.single as single
+    import gridflow.sources as sources
 
     def refuse(*a, **k):
         raise AssertionError("the input was read before the outputs were checked")
 
-    monkeypatch.setattr(single, "load_input", refuse)
+    monkeypatch.setattr(sources, "open_source", refuse)
 
 
 @pytest.mark.parametrize("models", [None, "all"])

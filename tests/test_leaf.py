@@ -124,7 +124,7 @@ def test_leaf_recording_growth_series_against_its_truth(leaf_recording, tmp_path
 
     out = tmp_path / "maps.zarr"
     assert main(["estimate", str(leaf_recording), "-o", str(out), "--sigma", "5",
-                 "--window", "21", "--no-progress"]) == 0
+                 "--window", "21", "--motion", "affine", "--no-progress"]) == 0
     table = growth_table(out, leaf_recording)
     assert list(table.frame) == [4, 5, 6, 7]
     assert (table.n_pixels > 3000).all()

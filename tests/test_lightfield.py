@@ -650,15 +650,16 @@ def test_a_scene_missing_a_view_is_refused_naming_it(tmp_path, gone):
     """The review: an 80-view scene without input_Cam000.png was read as a camera-grid
     folder ("no grid.json manifest").  A scene missing any view is refused as a scene,
     naming the file it lacks."""
-    from gridflow.bench.single import UsageError, estimate_input
+    from gridflow.errors import UsageError
     from gridflow.hci import HCIError
+    from gridflow.pipeline import estimate
 
     views = np.random.default_rng(1).uniform(0.2, 0.8, size=(3, 3, 24, 24))
     write_hci(tmp_path / "s", views)
     (tmp_path / "s" / f"input_Cam{gone:03d}.png").unlink()
     with pytest.raises((HCIError, UsageError), match=f"missing for a 3 x 3 grid: "
                                                      f"input_Cam{gone:03d}.png"):
-        estimate_input(tmp_path / "s", tmp_path / "out.npz")
+        estimate(tmp_path / "s", tmp_path / "out.npz")
     assert not (tmp_path / "out.npz").exists()
 
 

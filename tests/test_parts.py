@@ -114,7 +114,8 @@ def test_the_cli_takes_its_choices_from_the_library():
 
 
 def test_user_errors_exit_2_and_bugs_keep_their_traceback(tmp_path, monkeypatch, capsys):
-    from gridflow.bench import cli, single
+    import gridflow.pipeline as pipeline
+    from gridflow.bench import cli
     from gridflow.errors import UsageError
 
     sv = make_sinusoid(height=40, width=40, frames=5, grid=(3, 3))
@@ -126,13 +127,13 @@ def test_user_errors_exit_2_and_bugs_keep_their_traceback(tmp_path, monkeypatch,
     def usage(*a, **k):
         raise UsageError("--this and --that exclude each other")
 
-    monkeypatch.setattr(single, "estimate_input", usage)
+    monkeypatch.setattr(pipeline, "estimate", usage, raising=False)
     assert cli.main(args) == 2
     assert "gridflow estimate: error: --this and --that" in capsys.readouterr().err
     for bug in (TypeError("unsupported operand"), RuntimeError("state"), KeyError("x")):
         def broken(*a, _bug=bug, **k):
             raise _bug
 
-        monkeypatch.setattr(single, "estimate_input", broken)
+        monkeypatch.setattr(pipeline, "estimate", broken, raising=False)
         with pytest.raises(type(bug)):
             cli.main(args)

@@ -142,7 +142,7 @@ def _run(a, work: Path) -> None:
           f"{'steps/s':>9}{'peak RSS MiB':>14}")
     for path, frames in ((short, max(12, a.frames // 4)), (rec, a.frames)):
         out = work / f"maps_{path.stem}.zarr"
-        wall, cpu, peak, r = _gridflow("estimate", path, "-o", out, "--no-progress")
+        wall, cpu, peak, r = _gridflow("estimate", path, "-o", out, "--motion", "affine", "--no-progress")
         from gridflow.recording import MapStore
 
         steps = int(MapStore.open(out).done().sum())
@@ -165,12 +165,12 @@ def _run(a, work: Path) -> None:
     results = []
     for label, extra in runs:
         out = work / f"cmp_{len(results)}.zarr"
-        wall, cpu, _, _ = _gridflow("estimate", rec, "-o", out, *span, *extra)
+        wall, cpu, _, _ = _gridflow("estimate", rec, "-o", out, "--motion", "affine", *span, *extra)
         results.append((label, out, wall, cpu))
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                       dashboard_address=None, env=worker_env(1)) as cluster:
         out = work / "cmp_cluster.zarr"
-        wall, cpu, _, _ = _gridflow("estimate", rec, "-o", out, *span, "--connect",
+        wall, cpu, _, _ = _gridflow("estimate", rec, "-o", out, "--motion", "affine", *span, "--connect",
                                     cluster.scheduler_address)
         results.append(("dask.distributed LocalCluster, 2 workers x 1 thread", out, wall,
                         cpu))
@@ -185,6 +185,7 @@ def _run(a, work: Path) -> None:
     print("\n4. SIGKILL half-way, then the same command")
     out = work / "killed.zarr"
     cmd = [sys.executable, "-m", "gridflow.bench.cli", "estimate", str(rec), "-o", str(out),
+           "--motion", "affine",
            *map(str, span), "--workers", "1"]
     whole_wall = results[0][2]
     p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -230,7 +231,7 @@ def _leaf(a, work: Path) -> None:
           f"{wall:.1f} s wall, {cpu:.1f} s CPU, peak RSS {peak / 2**20:.0f} MiB",
           flush=True)
     maps = work / "maps_leaf.zarr"
-    wall, cpu, peak, _ = _gridflow("estimate", rec, "-o", maps, "--sigma", 8, "--window", 33,
+    wall, cpu, peak, _ = _gridflow("estimate", rec, "-o", maps, "--motion", "affine", "--sigma", 8, "--window", 33,
                                    "--no-progress")
     from gridflow.recording import MapStore
 
@@ -257,8 +258,9 @@ def _leaf(a, work: Path) -> None:
 
 
 def _bands(a, work: Path) -> None:
-    from gridflow.bench.series import step_memory
-    from gridflow.recording import MapStore, open_recording
+    from gridflow.pipeline.run import step_memory
+    from gridflow.recording import MapStore
+    from gridflow.sources import open_source
 
     size = a.bands_size
     print(f"\n7. row bands: the same steps whole and under a budget a step does not fit "
@@ -266,7 +268,7 @@ def _bands(a, work: Path) -> None:
     rec = work / "rec_bands.zarr"
     _gridflow("record", "-o", rec, "--frames", 16, "--height", size, "--width", size,
               "--no-progress")
-    need = step_memory(open_recording(rec), 4)
+    need = step_memory(open_source(rec).shape, 9)
     budget = need / 3 / 2**30
     span = ["--first", 4, "--last", 7, "--workers", 1, "--no-progress"]
     print(f"   one step (9 frames of 5x5 views of {size}^2 px) needs {need / 2**30:.2f} GiB by "
@@ -277,7 +279,7 @@ def _bands(a, work: Path) -> None:
     stores = {}
     for label, extra in (("whole steps", []), ("row bands (--memory)", ["--memory", budget])):
         out = work / f"bands_{len(stores)}.zarr"
-        wall, cpu, peak, _ = _gridflow("estimate", rec, "-o", out, *span, *extra)
+        wall, cpu, peak, _ = _gridflow("estimate", rec, "-o", out, "--motion", "affine", *span, *extra)
         st = MapStore.open(out)
         stores[label] = _arrays(out)
         print(f"   {label:<38}{wall:>9.1f}{cpu:>9.1f}{peak / 2**20:>14.0f}  "

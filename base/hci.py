@@ -195,11 +195,33 @@ def load_hci(folder, views: int | None = None) -> GridVolume:
         folder has them; ``meta["hci"]`` the geometry from ``parameters.cfg`` (if any)
         and the grid used.
     """
-    from .loader import LoaderError, read_image
-
     folder = Path(folder)
     if not folder.is_dir():
         raise HCIError(f"{folder}: not a folder")
+    chosen, n, use = _chosen_views(folder, views)
+    volume = _read_views(folder, chosen, use)
+    H, W = volume.shape[3:]
+    meta = {"source": "hci", "folder": str(folder), "grid": [n, n], "views_used": use}
+    geometry = None
+    cfg = folder / "parameters.cfg"
+    if cfg.is_file():
+        geometry, meta["hci"] = _scene_geometry(cfg, W)
+    truth = {}
+    for name, key in (("gt_disp_lowres.pfm", "disparity"), ("gt_depth_lowres.pfm", "depth")):
+        if (folder / name).is_file():
+            t = read_pfm(folder / name).astype(np.float64)
+            if t.shape != (H, W):
+                raise HCIError(f"{folder / name}: {t.shape} does not match the views' {(H, W)}")
+            truth[key] = t
+    f = geometry["focal_length_px"] if geometry else float(W)
+    return GridVolume(volume=volume, focal_length=f, camera_spacing=(1.0, 1.0),
+                      principal_point=((W - 1) / 2.0, (H - 1) / 2.0), truth=truth, meta=meta)
+
+
+def _chosen_views(folder: Path, views: int | None) -> tuple[list[Path], int, int]:
+    """The files of the central ``views x views`` views (all by default), the grid's size
+    and the number used; a grid with views missing or of an even size refused naming
+    what it lacks."""
     found = {}
     for p in folder.iterdir():
         m = _VIEW.match(p.name)
@@ -234,13 +256,21 @@ def load_hci(folder, views: int | None = None) -> GridVolume:
     if irregular:
         raise HCIError(f"{folder}: {len(irregular)} view(s) are not regular files, e.g. "
                        f"{irregular[:3]}")
+    return chosen, n, use
+
+
+def _read_views(folder: Path, chosen: list[Path], use: int) -> np.ndarray:
+    """The views as a ``(1, use, use, H, W)`` volume, each checked against the first
+    (size, pixel type); refused before the second is decoded when they would take more
+    than half the memory."""
+    from .loader import LoaderError, read_image
+
     volume = None
     first = first_kind = None
     try:
         for k, p in enumerate(chosen):
             img, kind = read_image(p)
             if volume is None:
-                # the memory check after the first view, before the others are decoded
                 mem = physical_memory()
                 if mem is not None and use * use * img.size * 8 > mem // 2:
                     raise HCIError(f"{folder}: {use}x{use} views of {img.shape[1]}x"
@@ -257,34 +287,24 @@ def load_hci(folder, views: int | None = None) -> GridVolume:
             volume[0, k // use, k % use] = img
     except LoaderError as exc:
         raise HCIError(str(exc)) from None
-    H, W = volume.shape[3:]
-    meta = {"source": "hci", "folder": str(folder), "grid": [n, n], "views_used": use}
-    geometry = None
-    cfg = folder / "parameters.cfg"
-    if cfg.is_file():
-        params = read_parameters(cfg)
-        geometry = _geometry(params, cfg, W)
-        meta["hci"] = {**geometry, "scene": params.get("meta", {}).get("scene")}
-        # the benchmark states each scene's disparity range (an input, not ground truth:
-        # methods may use it to bound their search)
-        m = params.get("meta", {})
-        if "disp_min" in m or "disp_max" in m:
-            lo, hi = m.get("disp_min"), m.get("disp_max")
-            if not (isinstance(lo, float | int) and isinstance(hi, float | int)
-                    and np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
-                raise HCIError(f"{cfg}: [meta] disp_min, disp_max: expected two finite "
-                               f"numbers with disp_min <= disp_max, got {lo!r}, {hi!r}")
-            meta["hci"]["disp_range"] = [float(lo), float(hi)]
-    truth = {}
-    for name, key in (("gt_disp_lowres.pfm", "disparity"), ("gt_depth_lowres.pfm", "depth")):
-        if (folder / name).is_file():
-            t = read_pfm(folder / name).astype(np.float64)
-            if t.shape != (H, W):
-                raise HCIError(f"{folder / name}: {t.shape} does not match the views' {(H, W)}")
-            truth[key] = t
-    f = geometry["focal_length_px"] if geometry else float(W)
-    return GridVolume(volume=volume, focal_length=f, camera_spacing=(1.0, 1.0),
-                      principal_point=((W - 1) / 2.0, (H - 1) / 2.0), truth=truth, meta=meta)
+    return volume
+
+
+def _scene_geometry(cfg: Path, W: int) -> tuple[dict, dict]:
+    """The geometry of ``parameters.cfg`` and the scene's ``meta["hci"]`` (with the
+    disparity range the benchmark states, where it does: an input, not ground truth)."""
+    params = read_parameters(cfg)
+    geometry = _geometry(params, cfg, W)
+    hci = {**geometry, "scene": params.get("meta", {}).get("scene")}
+    m = params.get("meta", {})
+    if "disp_min" in m or "disp_max" in m:
+        lo, hi = m.get("disp_min"), m.get("disp_max")
+        if not (isinstance(lo, float | int) and isinstance(hi, float | int)
+                and np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
+            raise HCIError(f"{cfg}: [meta] disp_min, disp_max: expected two finite "
+                           f"numbers with disp_min <= disp_max, got {lo!r}, {hi!r}")
+        hci["disp_range"] = [float(lo), float(hi)]
+    return geometry, hci
 
 
 def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,

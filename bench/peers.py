@@ -36,6 +36,7 @@ import pandas as pd
 
 from gridflow.estimator import MODELS
 
+from .cube_experiment import CUBE_SIGMA, CUBE_WINDOW
 from .metrics import evaluate, hci_metrics
 
 __all__ = ["epi_structure_tensor", "DEPTH_METHODS", "run_depth", "compare_motion",
@@ -364,7 +365,7 @@ def run_peers(cache, *, csv_depth, csv_motion, fig_dir, write_hci=None,
         for r in compare_motion(make_sinusoid(**MOTION_BASE, **kw)):
             rows.append({"data": case, **r})
     cube = load_folder(render_cube(CubeScene(), cache, progress=progress))
-    for r in compare_motion(cube, sigma=8.0, window=33):
+    for r in compare_motion(cube, sigma=CUBE_SIGMA, window=CUBE_WINDOW):
         rows.append({"data": "cube (spotlight)", **r})
     motion = pd.DataFrame(rows)
     with atomic_write(csv_motion, "w") as fh:

@@ -3,8 +3,8 @@
 Each motion model (:data:`estimator.models.MOTION_MODELS`) has its own disentangling, a
 function here registered for the model object with :func:`disentangles` (the models
 module is below this one and cannot name the functions); the brightness parameters are
-read the same way under every one.  The twice-estimated
-quantities (``v, z_x, z_y, u_z``) are combined with inverse-variance weights from
+read the same way under every one.  The twice-estimated quantities (``v, z_x, z_y,
+u_z``) are combined with inverse-variance weights from
 :func:`estimator.nullspace.null_space`'s ``g`` (derivation there) or plainly averaged;
 their correlation is ignored (the paper rotates coordinates to make it vanish; we do
 not).

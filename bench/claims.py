@@ -45,6 +45,7 @@ import numpy as np
 import pandas as pd
 
 from gridflow.estimator import MODELS
+from gridflow.estimator.models import AFFINE, TRANSLATION
 
 __all__ = ["check_claims", "claims_markdown", "render_checks", "write_claims", "CLAIMS",
            "missing_data", "breakdown", "paper_terms", "paper_terms_markdown"]
@@ -111,7 +112,7 @@ def _rows(df, model, quantity, param, noise) -> pd.DataFrame:
     d = df[(df.model == model) & (df.quantity == quantity) & (df.param == param)
            & (df.noise == noise)]
     if "motion" in d:                # the paper's observations are about its own model
-        d = d[d.motion == "translation"]
+        d = d[d.motion == TRANSLATION.name]
     return d
 
 
@@ -421,7 +422,7 @@ def obs9(df) -> Result:
     similar = bool(common.any() and ((ratio >= 1 / FACTOR) & (ratio <= FACTOR)).all())
     agree, spread = [], []
     for p in ("a2", "a2x"):
-        first = [_curve(df, m, "Uz", p).iloc[1] for m in ("bcc", "hf", "full")]
+        first = [_curve(df, m, "Uz", p).iloc[1] for m in MODELS]
         agree.append(max(first) <= FACTOR * min(first))
         spread.append(f"largest/smallest of the three {_fmt(max(first) / min(first))}")
     (alo, ahi), (xlo, xhi) = breakdown(df, "bcc", "a2"), breakdown(df, "bcc", "a2x")
@@ -468,7 +469,7 @@ def obs10(df) -> Result:
     n = min(v for v in df.noise.unique() if v > 0)
     same, changed, both_broken = [], [], 0
     for p in ("a1", "a1x", "a2", "a2x"):
-        for m in ("bcc", "hf", "full"):
+        for m in MODELS:
             c0, c1 = _curve(df, m, "Uz", p, 0.0), _curve(df, m, "Uz", p, n)
             b0, b1 = _broken(df, m, p, 0.0), _broken(df, m, p, n)
             for v in [v for v in c0.index[-2:] if c0[v] >= c1.iloc[0]]:
@@ -574,7 +575,7 @@ def missing_data(df: pd.DataFrame, cid: str) -> str | None:
 
 def _motion_curve(df, motion, model, quantity, param, noise=0.0) -> pd.Series:
     """``_curve`` of one motion model's rows."""
-    return _curve(df[df.motion == motion].assign(motion="translation"), model, quantity,
+    return _curve(df[df.motion == motion].assign(motion=TRANSLATION.name), model, quantity,
                   param, noise)
 
 
@@ -582,8 +583,8 @@ def _translation_breaks(df, param: str) -> Result:
     """On ``param``'s axis (noise-free, full model): the translation model's Q_rel(U_Z)
     broken down (above 0.1 and 10x the affine model's) from some rate on, the affine
     model's stable (below 0.01) at every rate."""
-    tr = _motion_curve(df, "translation", "full", "Uz", param)
-    af = _motion_curve(df, "affine", "full", "Uz", param)
+    tr = _motion_curve(df, TRANSLATION.name, "full", "Uz", param)
+    af = _motion_curve(df, AFFINE.name, "full", "Uz", param)
     broken = (tr > BREAK) & (tr >= RATIO * af)
     flags = broken.to_numpy()
     first = next((i for i in range(len(flags)) if flags[i:].all()), None)
@@ -623,7 +624,7 @@ GROWTH_NEEDS = {"G1": "growth", "G2": "rotation"}
 def is_growth_sweep(df: pd.DataFrame) -> bool:
     """A sweep of the affine motion model (``gridflow sweep growth``): its claims are
     :data:`GROWTH_CLAIMS`, the paper's observations are about the translation model."""
-    return "motion" in df and (df.motion == "affine").any()
+    return "motion" in df and (df.motion == AFFINE.name).any()
 
 
 def check_claims(df: pd.DataFrame) -> pd.DataFrame:
@@ -641,7 +642,7 @@ def check_claims(df: pd.DataFrame) -> pd.DataFrame:
             p = GROWTH_NEEDS[cid]
             have = {m: set(df[(df.param == p) & (df.motion == m) & (df.model == "full")
                               & (df.quantity == "Uz") & (df.noise == 0)].value)
-                    for m in ("translation", "affine")}
+                    for m in (TRANSLATION.name, AFFINE.name)}
             ok = all(0 in v and len(v - {0}) >= MIN_VALUES for v in have.values())
             r = fn(df) if ok else Result("not tested", f"the sweep lacks its data: full "
                                          f"model, both motions, 0 and {MIN_VALUES} other "

@@ -24,7 +24,16 @@ from gridflow.scenes import FACE_NAMES, CubeScene, face_interior, spot_angle
 from gridflow.metrics import q_abs, q_rel
 
 __all__ = ["run_cube_experiment", "CubeReport", "run_cube", "cube_table", "fig1",
-           "observation11", "observation12", "regions", "cube_markdown", "angular_errors"]
+           "observation11", "observation12", "regions", "cube_markdown", "angular_errors",
+           "CUBE_SIGMA", "CUBE_WINDOW", "RENDER_CACHE"]
+
+# The POV-Ray studies' window (the cube, its variants, the leaf, the peers' motion
+# comparison): sigma 8 px, 33 taps, because the 67-px left face of a 256-px image needs a
+# smaller window than the sinusoid's 16 px / 65 taps.  And where their renders are cached
+# (not committed).
+CUBE_SIGMA = 8.0
+CUBE_WINDOW = 33
+RENDER_CACHE = "work/cube"
 
 COLUMNS = ["face", "region", "model", "n_pixels", "n_valid", "q_rel_Uz", "q_abs_Ux", "q_abs_Uy",
            "q_rel_Z", "q_abs_Zx", "q_abs_Zy", "median_model_error", "median_rel_Uz",
@@ -411,7 +420,7 @@ class CubeReport:
 
 
 def run_cube_experiment(scene: CubeScene, cache, *, csv, fig_dir, doc=None,
-                        sigma: float = 8.0, window: int = 33,
+                        sigma: float = CUBE_SIGMA, window: int = CUBE_WINDOW,
                         temporal_radius: int | None = None,
                         progress: bool = True) -> CubeReport:
     """Render ``scene`` into ``cache`` (or find it there), estimate, score, draw, write.
@@ -420,7 +429,7 @@ def run_cube_experiment(scene: CubeScene, cache, *, csv, fig_dir, doc=None,
     ----------
     scene : CubeScene
     cache : path
-        Render cache (``work/cube``).
+        Render cache (:data:`RENDER_CACHE`).
     csv : path
         The per-face table (``results/cube.csv``), written atomically.
     fig_dir : path
@@ -428,8 +437,8 @@ def run_cube_experiment(scene: CubeScene, cache, *, csv, fig_dir, doc=None,
     doc : path, optional
         A markdown file whose ``cube`` block is rewritten (``docs/reproduction.md``).
     sigma, window
-        The estimator's window (the 67-px left face of a 256-px image needs a smaller one
-        than the sinusoid's 16).
+        The estimator's window (default :data:`CUBE_SIGMA`, :data:`CUBE_WINDOW`: the
+        67-px left face of a 256-px image needs a smaller one than the sinusoid's 16).
     temporal_radius : int, optional
         Omega over frames -R..R (default: the estimator's).
     progress : bool

@@ -20,7 +20,8 @@ import pandas as pd
 
 from gridflow.scenes import CubeScene
 
-from .cube_experiment import ALMOST, RIGHT_DEG, cube_table, run_cube
+from .cube_experiment import (ALMOST, CUBE_SIGMA, CUBE_WINDOW, RIGHT_DEG, cube_table,
+                              run_cube)
 
 __all__ = ["Variant", "VARIANTS", "run_cube_variants", "variants_markdown", "COLUMNS"]
 
@@ -34,8 +35,8 @@ class Variant:
     label: str
     options: str                         # the `gridflow cube` options of this variant
     scene: dict = field(default_factory=dict)
-    sigma: float = 8.0
-    window: int = 33
+    sigma: float = CUBE_SIGMA
+    window: int = CUBE_WINDOW
     temporal_radius: int | None = None
 
 

@@ -26,6 +26,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from gridflow.estimator import MODELS  # noqa: E402
+from gridflow.estimator.models import AFFINE, TRANSLATION  # noqa: E402
+
+from .claims import is_growth_sweep  # noqa: E402
+
 __all__ = ["fig2", "fig3", "fig4", "fig_peers_depth", "draw_figures", "sinusoid_fig2", "save",
            "setup_label",
            "STYLE", "MODEL_STYLE", "PARAM_LABEL"]
@@ -214,7 +219,7 @@ def fig4(df: pd.DataFrame, noise: float = 0.025, label: str = ""):
         for row, n in enumerate((0.0, noise)):
             for col, p in enumerate(PARAMS):
                 ax = axes[row, col]
-                for model in ("bcc", "hf", "full"):
+                for model in MODELS:
                     d = df[(df.param == p) & (df.quantity == "Uz") & (df.model == model)
                            & (df.noise == n)]
                     if not d.empty:
@@ -321,8 +326,8 @@ def fig_growth(df: pd.DataFrame, noise: float = 0.01, label: str = ""):
         for row, n in enumerate((0.0, noise)):
             for col, (p, q) in enumerate(panels):
                 ax = axes[row, col]
-                for motion, ls in (("affine", "-"), ("translation", "--")):
-                    for model in ("bcc", "hf", "full"):
+                for motion, ls in ((AFFINE.name, "-"), (TRANSLATION.name, "--")):
+                    for model in MODELS:
                         d = df[(df.param == p) & (df.quantity == q) & (df.model == model)
                                & (df.noise == n) & (df.motion == motion)]
                         if d.empty:
@@ -371,7 +376,7 @@ def draw_figures(out_dir, *, sweep: pd.DataFrame | None = None, fig2_too: bool =
     if sweep is not None:
         names = [f"sweep {n}" for n in sweep["sweep"].unique()] if "sweep" in sweep else []
         label = ", ".join(names + [setup_label(sweep)])
-        if "motion" in sweep and (sweep.motion == "affine").any():
+        if is_growth_sweep(sweep):
             # a growth sweep: its own figure
             written += save(fig_growth(sweep, label=label), out_dir, "fig_growth" + suffix)
         else:

@@ -22,7 +22,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from gridflow.estimator import MODELS, estimate_models
+from gridflow.estimator import MODELS, MOTIONS, estimate_models
+from gridflow.estimator.models import AFFINE, TRANSLATION
+
+from .cube_experiment import CUBE_SIGMA, CUBE_WINDOW
 
 __all__ = ["run_leaf_experiment", "LeafReport", "leaf_regions", "leaf_table", "fig_leaf",
            "REGIONS"]
@@ -80,8 +83,8 @@ def fig_leaf(data, truth: dict, results: dict):
     leaf = np.asarray(truth["leaf"], bool)
     Sy, Sx = data.volume.shape[1:3]
     img = data.volume[data.meta.get("ref_frame") or 0, Sy // 2, Sx // 2]
-    aff = results[("affine", "full")]
-    tra = results[("translation", "full")]
+    aff = results[(AFFINE.name, "full")]
+    tra = results[(TRANSLATION.name, "full")]
     g_true = float(np.nanmedian(truth["growth"]))
     with np.errstate(invalid="ignore", divide="ignore"):
         uz_err = np.abs(tra["Uz"] - truth["Uz"]) / np.abs(truth["Uz"])
@@ -120,8 +123,8 @@ class LeafReport:
     written: list
 
 
-def run_leaf_experiment(scene, cache, *, csv, fig_dir, sigma: float = 8.0,
-                        window: int = 33, progress: bool = True) -> LeafReport:
+def run_leaf_experiment(scene, cache, *, csv, fig_dir, sigma: float = CUBE_SIGMA,
+                        window: int = CUBE_WINDOW, progress: bool = True) -> LeafReport:
     """Render ``scene`` into ``cache`` (or find it there), estimate with both motion
     models and every brightness model, score per region, write ``csv`` and
     ``fig_dir/fig_leaf.{png,pdf}``."""
@@ -140,7 +143,7 @@ def run_leaf_experiment(scene, cache, *, csv, fig_dir, sigma: float = 8.0,
     # the interior: leaf pixels whose whole window (and filters) lies on the leaf
     truth = leaf_truth(scene, margin=window // 2 + 2)
     results = {}
-    for motion in ("translation", "affine"):
+    for motion in MOTIONS:
         res = estimate_models(data.volume, data.focal_length, data.camera_spacing,
                               principal_point=data.principal_point, motion=motion,
                               sigma=sigma, window=window, ref_frame=data.meta["ref_frame"],

@@ -27,6 +27,7 @@ import time
 
 import numpy as np
 
+from gridflow.bench.cube_experiment import RENDER_CACHE
 from gridflow.metrics import hci_metrics
 from gridflow.estimator import estimate
 from gridflow.estimator.lightfield import estimate_refocused, estimate_shear_range
@@ -95,8 +96,8 @@ def study(scenes: dict, progress=print) -> list[dict]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hci", nargs="*", default=[], help="HCI scene folders to add")
-    ap.add_argument("--cache", default="work/cube",
-                    help="where the cube light field is rendered (default work/cube)")
+    ap.add_argument("--cache", default=RENDER_CACHE,
+                    help=f"where the cube light field is rendered (default {RENDER_CACHE})")
     ap.add_argument("--no-cube", action="store_true", help="leave out the POV-Ray cube")
     a = ap.parse_args(argv)
     scenes = synthetic_scenes()

@@ -35,8 +35,9 @@ import numpy as np
 import pandas as pd
 
 from gridflow.estimator import MODELS
-
 from gridflow.metrics import evaluate, hci_metrics
+
+from .cube_experiment import CUBE_SIGMA, CUBE_WINDOW
 
 __all__ = ["epi_structure_tensor", "DEPTH_METHODS", "run_depth", "compare_motion",
            "MOTION_CASES", "run_peers", "PeersReport", "score_hci_scene", "check_hci_scene"]
@@ -364,7 +365,7 @@ def run_peers(cache, *, csv_depth, csv_motion, fig_dir, write_hci=None,
         for r in compare_motion(make_sinusoid(**MOTION_BASE, **kw)):
             rows.append({"data": case, **r})
     cube = load_folder(render_cube(CubeScene(), cache, progress=progress))
-    for r in compare_motion(cube, sigma=8.0, window=33):
+    for r in compare_motion(cube, sigma=CUBE_SIGMA, window=CUBE_WINDOW):
         rows.append({"data": "cube (spotlight)", **r})
     motion = pd.DataFrame(rows)
     with atomic_write(csv_motion, "w") as fh:

@@ -222,6 +222,8 @@ def _run(a, work: Path) -> None:
 def _leaf(a, work: Path) -> None:
     import pandas as pd
 
+    from gridflow.bench.cube_experiment import CUBE_SIGMA, CUBE_WINDOW
+
     print("\n6. the POV-Ray leaf as a recording (gridflow record-leaf)")
     rec = work / "leaf.zarr"
     wall, cpu, peak, _ = _gridflow("record-leaf", "-o", rec, "--frames", a.leaf_frames,
@@ -231,12 +233,13 @@ def _leaf(a, work: Path) -> None:
           f"{wall:.1f} s wall, {cpu:.1f} s CPU, peak RSS {peak / 2**20:.0f} MiB",
           flush=True)
     maps = work / "maps_leaf.zarr"
-    wall, cpu, peak, _ = _gridflow("estimate", rec, "-o", maps, "--motion", "affine", "--sigma", 8, "--window", 33,
-                                   "--no-progress")
+    wall, cpu, peak, _ = _gridflow("estimate", rec, "-o", maps, "--motion", "affine", "--sigma",
+                                   f"{CUBE_SIGMA:g}", "--window", CUBE_WINDOW, "--no-progress")
     from gridflow.recording import MapStore
 
     steps = int(MapStore.open(maps).done().sum())
-    print(f"   the whole series (sigma 8, 33 taps, full model, affine motion): {steps} steps "
+    print(f"   the whole series (sigma {CUBE_SIGMA:g}, {CUBE_WINDOW} taps, full model, affine "
+          f"motion): {steps} steps "
           f"in {wall:.1f} s wall, {cpu:.1f} s CPU, {steps / wall:.3f} steps/s, peak RSS "
           f"{peak / 2**20:.0f} MiB", flush=True)
     _gridflow("growth", maps, "--truth", rec, "--fig-dir", work / "figs_leaf",

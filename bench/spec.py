@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from gridflow.errors import GridflowError
-from gridflow.estimator import MODELS, MOTIONS, EstimatorSettings, InputError
+from gridflow.estimator import DEFAULTS, MODELS, MOTIONS, EstimatorSettings, InputError
 from gridflow.generators import SinusoidParams, check_params
 from gridflow.volume import physical_memory
 
@@ -89,7 +89,7 @@ class SweepSpec:
     estimator: dict = field(default_factory=dict)
     axes: list[tuple[str, list[float]]] = field(default_factory=list)
     setup: str = "gridflow"
-    motions: list[str] = field(default_factory=lambda: ["translation"])
+    motions: list[str] = field(default_factory=lambda: [DEFAULTS["motion"]])
     fixed: dict = field(default_factory=dict)
 
     @classmethod
@@ -140,7 +140,7 @@ class SweepSpec:
                    seeds=_list(sw.get("seeds", [0]), int, "[sweep] seeds", source),
                    base=dict(raw.get("base", {})), estimator=dict(raw.get("estimator", {})),
                    axes=axes, setup=sw.get("setup", "gridflow"),
-                   motions=_list(sw.get("motions", ["translation"]), str, "[sweep] motions",
+                   motions=_list(sw.get("motions", [DEFAULTS["motion"]]), str, "[sweep] motions",
                                  source), fixed=fixed)
         spec.validate(source)
         return spec

@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from gridflow.estimator import DEFAULTS, estimate_models
+from gridflow.estimator.models import TRANSLATION
 from gridflow.generators import SinusoidParams, add_noise, make_sinusoid
 from gridflow.io import atomic_write
 
@@ -333,7 +334,7 @@ def read_sweep_csv(path) -> pd.DataFrame:
     missing = need - set(df)
     if "motion" not in df and not missing:
         # made before motion models existed: every row is the paper's translation
-        df.insert(df.columns.get_loc("model") + 1, "motion", "translation")
+        df.insert(df.columns.get_loc("model") + 1, "motion", TRANSLATION.name)
     if missing:
         raise SpecError(f"{path}: not a sweep CSV (missing columns {sorted(missing)})")
     for col in ("value", "noise", "q_rel", "q_abs"):

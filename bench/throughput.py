@@ -53,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from gridflow.estimator import MODELS, estimate
+from gridflow.estimator.models import AFFINE, TRANSLATION
 from gridflow.generators import make_sinusoid
 
 SECTIONS = ("inprocess", "cli", "scaling", "zoom")
@@ -99,10 +100,10 @@ def inprocess(size: int, models, repeat: int, affine=("full",)) -> list[dict]:
     # load (or compile) the numba kernels outside the timings
     estimate(sv.volume[..., :160, :160], sv.focal_length, sv.camera_spacing, model="full")
     rows = []
-    cases = [(m, "translation") for m in models] + [(m, "affine") for m in affine]
+    cases = [(m, TRANSLATION) for m in models] + [(m, AFFINE) for m in affine]
     for model, motion in cases:
         run = lambda method: estimate(sv.volume, sv.focal_length, sv.camera_spacing,  # noqa: E731
-                                      model=model, method=method, motion=motion)
+                                      model=model, method=method, motion=motion.name)
         fast, base = [], []
         for _ in range(repeat):
             fast.append(_timed(lambda: run("fast"), 1))
@@ -110,7 +111,7 @@ def inprocess(size: int, models, repeat: int, affine=("full",)) -> list[dict]:
         fw, fc, ef = min(fast, key=lambda r: r[0])
         bw, bc, eb = min(base, key=lambda r: r[0])
         n_int = int(eb.interior.sum())
-        rows.append(dict(model=model if motion == "translation" else f"{model} (affine)",
+        rows.append(dict(model=model if motion is TRANSLATION else f"{model} ({motion.name})",
                          size=size, base_wall=bw, base_cpu=bc, fast_wall=fw,
                          fast_cpu=fc, wall_ratio=bw / fw, cpu_ratio=bc / fc,
                          round_ratio=float(np.median([b[0] / f[0] for f, b in zip(fast, base)])),

@@ -1,8 +1,10 @@
 """From the parameter vectors to world quantities (Sec. 3, steps 4-5).
 
-Each motion model (:data:`estimator.models.MOTIONS`) has its own disentangling; the
-brightness parameters are read the same way under every one.  The twice-estimated
-quantities (``v, z_x, z_y, u_z``) are combined with inverse-variance weights from
+Each motion model (:data:`estimator.models.MOTION_MODELS`) has its own disentangling, a
+function here registered for the model object with :func:`disentangles` (the models
+module is below this one and cannot name the functions); the brightness parameters are
+read the same way under every one.  The twice-estimated quantities (``v, z_x, z_y,
+u_z``) are combined with inverse-variance weights from
 :func:`estimator.nullspace.null_space`'s ``g`` (derivation there) or plainly averaged;
 their correlation is ignored (the paper rotates coordinates to make it vanish; we do
 not).
@@ -20,11 +22,31 @@ estimate and can be removed after the fact: ``u_z = P[3, t] - z_x P[1, t] / v`` 
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
-from .models import Model
+from .models import AFFINE, TRANSLATION, Model, MotionModel
 
-__all__ = ["disentangle"]
+__all__ = ["disentangle", "disentangles"]
+
+# motion model -> its disentangling: world velocities (and, for affine motion, growth,
+# rotation and the slopes' rates) from the parameter vectors and the plane.  Keyed by the
+# object, not its name: a model made outside the registry of names gets its own entry.
+_DISENTANGLING: dict[MotionModel, Callable] = {}
+
+
+def disentangles(motion: MotionModel) -> Callable[[Callable], Callable]:
+    """Register the decorated function as the disentangling of ``motion``.
+
+    The function is called as ``fn(P, g, model, plane, x0, y0, f, spacing,
+    slant_correction, combine2, residual)`` (see :func:`_translation`) and returns the
+    maps of ``motion.outputs``.
+    """
+    def register(fn: Callable) -> Callable:
+        _DISENTANGLING[motion] = fn
+        return fn
+    return register
 
 
 def _combine(x1, w1, x2, w2):
@@ -93,8 +115,13 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
         Zy = zy * Z / den
     out = {"Z": Z, "Zx": Zx, "Zy": Zy, "disparity": disparity}
     plane = dict(v=v, zx=zx, zy=zy, Z=Z, Zx=Zx, Zy=Zy)
-    out.update(_MOTION[model.motion](P, g, model, plane, x0, y0, f, spacing,
-                                     slant_correction, combine2, residual))
+    try:
+        motion = _DISENTANGLING[model.motion]
+    except KeyError:
+        raise LookupError(f"motion model {model.motion.name!r} has no disentangling: "
+                          "register one with estimator.disentangle.disentangles") from None
+    out.update(motion(P, g, model, plane, x0, y0, f, spacing, slant_correction, combine2,
+                      residual))
     with np.errstate(divide="ignore", invalid="ignore"):
         out.update(_brightness(ct, model, Z, Zx, Zy, x0, y0, f))
     return out
@@ -120,6 +147,7 @@ def _from_ds_columns(P, g, model: Model, spacing, combine2):
     return v, zx, zy
 
 
+@disentangles(TRANSLATION)
 def _translation(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, combine2,
                  residual=None):
     """The paper's motion model, from the dt column: the divergence ``u_z`` twice (rows 3
@@ -258,6 +286,7 @@ _AFFINE_RATE_ROWS = (("v_t", "tIx", "tIy"), ("zx_t", "tIxDx", "tIyDx"),
                      ("zy_t", "tIxDy", "tIyDy"))
 
 
+@disentangles(AFFINE)
 def _affine(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, combine2,
             residual=None):
     """Affine motion: the flow and its gradient from the dt column, the rates of the
@@ -318,11 +347,6 @@ def _affine(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, com
             sd[:, ~ok] = np.nan
             out["Uz_err"], out["growth_err"], out["rotation_err"] = sd
     return out
-
-
-# motion model -> its disentangling: world velocities (and, for affine motion, growth,
-# rotation and the slopes' rates) from the parameter vectors and the plane
-_MOTION = {"translation": _translation, "affine": _affine}
 
 
 def _brightness(ct, model: Model, Z, Zx, Zy, x0, y0, f) -> dict:

@@ -18,7 +18,8 @@ import numpy as np
 from .backends import TensorPlan, select_backend
 from .disentangle import disentangle
 from .filters import FilterPair, get_filter_pair
-from .models import MODELS, ZOOM_ROW_SIGNALS, Model, covering_rows, get_model, zoom_rows
+from .models import (BRIGHTNESS_MODELS, MODELS, MOTION_MODELS, ZOOM_ROW_SIGNALS, Model,
+                     covering_rows, get_model, one_frame_problem, zoom_rows)
 from .result import Estimate
 from .settings import EstimatorSettings, InputError
 from .signals import SignalPlan, signal_plan
@@ -167,7 +168,8 @@ def _time_window(s: EstimatorSettings, T: int, k_ref: int, models) -> tuple[Filt
     """The temporal filter pair and the temporal radius of Ω that fit the frames."""
     reach = min(k_ref, T - 1 - k_ref)
     # rows with a factor t (brightness change, affine motion) need t to vary over Omega
-    needs_t = any(m != "bcc" for m in models) or s.motion != "translation"
+    needs_t = (any(BRIGHTNESS_MODELS[m].needs_time for m in models)
+               or MOTION_MODELS[s.motion].needs_time)
     time = None
     for cand in (get_filter_pair(s.filters), get_filter_pair("matched3")):
         room = reach - cand.radius
@@ -226,13 +228,10 @@ def _plan(volume, focal_length, camera_spacing, principal_point, s: EstimatorSet
     static = T == 1
     if static:
         # a static light field: depth and slopes from the camera axes alone
-        if s.motion != "translation":
-            raise InputError(f"motion {s.motion!r} needs a time axis; a light field of one "
-                             "frame has no motion (motion 'translation', model 'bcc')")
-        bad = [m for m in models if m != "bcc"]
-        if bad:
-            raise InputError(f"models {bad} need a time axis (brightness change over "
-                             "frames); a light field of one frame takes model 'bcc'")
+        problem = one_frame_problem([BRIGHTNESS_MODELS[m] for m in models],
+                                    MOTION_MODELS[s.motion])
+        if problem:
+            raise InputError(problem)
         if s.temporal_radius not in (None, 0):
             raise InputError(f"temporal_radius {s.temporal_radius}: a light field of one "
                              "frame has no time axis")
@@ -288,8 +287,9 @@ def estimate(volume: np.ndarray, focal_length: float, camera_spacing, *, model: 
     camera_spacing : (float, float)
         ``(ds_x, ds_y)`` in world units (``ds_y`` ignored for a 1-D grid).
     model : {"bcc", "hf", "full"}
-        Brightness constancy, Haussecker-Fleet (spatially constant change), or the
-        paper's full model (spatially varying change).
+        The brightness model (:data:`estimator.models.MODELS`): brightness constancy,
+        Haussecker-Fleet (spatially constant change), or the paper's full model
+        (spatially varying change).  The motion model is the setting ``motion``.
     principal_point : (float, float), optional
         ``(cx, cy)`` in pixels; default the image centre.
     **settings
@@ -389,4 +389,5 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
                 filters_sy=plan.cam_y.name if plan.cam_y else None,
                 filters_t=plan.time.name if plan.time else None,
                 temporal_radius=plan.R_t, ref_frame=plan.k_ref, backend=backend.name)
-    return {m: Estimate(out[m], m, interior, dict(used, model=m)) for m in models}
+    return {m: Estimate(out[m], m, interior, dict(used, model=m), motion=s.motion)
+            for m in models}

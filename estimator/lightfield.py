@@ -47,7 +47,7 @@ import numpy as np
 
 from .driver import estimate
 from .result import Estimate
-from .settings import InputError
+from .settings import DEFAULTS, InputError
 
 __all__ = ["shear", "estimate_refocused", "SELECT_DEFAULTS", "SELECTS", "stated_shears",
            "estimate_shear_range", "check_shears"]
@@ -88,7 +88,7 @@ def check_shears(shears, n: int, H: int, W: int, what: str = "shears") -> None:
                          "image")
 
 
-def estimate_shear_range(views: np.ndarray, *, filters: str = "matched5",
+def estimate_shear_range(views: np.ndarray, *, filters: str = DEFAULTS["filters"],
                          coverage: float = 2.0) -> tuple[tuple[int, ...], dict]:
     """The integer shears covering a light field's disparities, from the data: a coarse
     pass where no range is stated (an HCI scene's ``parameters.cfg`` states one).
@@ -273,7 +273,7 @@ def _admissible(disp, err, interior, s: int, m: int):
 
 def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
                        sigma: float | None = None, window: int | None = None,
-                       filters: str = "matched5", select: str = "lines",
+                       filters: str = DEFAULTS["filters"], select: str = "lines",
                        subgrid: int | None = None, aggregate: int = 3,
                        coarse_sigma: float = 2.0, fill: bool = True, median: int = 3,
                        progress=None) -> Estimate:

@@ -23,21 +23,26 @@ Each data row is a base signal times a temporal power and a spatial monomial:
  15    I t Δy        2 b2y dt                              (I, 1, Δy)
 =====  ============  ====================================  ===========
 
-A model is a **motion model** (how the surface patch moves: which geometric rows the data
-vector has and how their parameters turn into depth, slopes and velocity) combined with
-a **brightness model** (how its brightness changes: which rows of ``I`` are added).  The
-paper's motion model is ``translation``: a patch moving without deforming, rows 1-9.  The
-brightness models are BCC (no rows), HF (rows 10 and 13) and the full model (rows
-10-15).  A 1-D camera grid (``ds_y = 0``) drops rows 5 and 8; a static light field (one
-frame) drops row 9 and has no ``dt`` column.
+A model (:class:`Model`) is two axes travelling together: a **motion model**
+(:class:`MotionModel`: how the surface patch moves, which geometric rows the data vector
+has and how their parameters turn into depth, slopes and velocity) and a **brightness
+model** (:class:`BrightnessModel`: how its brightness changes, which rows of ``I`` are
+added).  The paper's motion model is ``translation``: a patch moving without deforming,
+rows 1-9; ``affine`` adds the ``t I_x``-rows of a velocity varying across the surface.
+The brightness models are BCC (no rows), HF (rows 10 and 13) and the full model (rows
+10-15).  A 1-D camera grid (``ds_y = 0``) drops rows 5 and 8 under translation (row 8
+under affine motion); a static light field (one frame) drops row 9 and has no ``dt``
+column.  Each axis is defined once, in :data:`MOTION_MODELS` and
+:data:`BRIGHTNESS_MODELS`; :data:`MOTIONS` and :data:`MODELS` are their names.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["ROWS", "ALL_ROWS", "ZOOM_ROWS", "ZOOM_ROW_SIGNALS", "zoom_rows", "MODELS",
-           "MOTIONS", "BRIGHTNESS_OUTPUTS", "Model", "get_model", "covering_rows"]
+__all__ = ["ROWS", "ALL_ROWS", "ZOOM_ROWS", "ZOOM_ROW_SIGNALS", "zoom_rows", "MotionModel",
+           "BrightnessModel", "TRANSLATION", "AFFINE", "MOTION_MODELS", "BRIGHTNESS_MODELS",
+           "MODELS", "MOTIONS", "Model", "get_model", "one_frame_problem", "covering_rows"]
 
 # name -> (base signal, temporal power, spatial monomial)
 ROWS: dict[str, tuple[str, int, str]] = {
@@ -72,35 +77,104 @@ ZOOM_ROW_SIGNALS: dict[str, tuple[str, int, str]] = {
     "z" + r: (_ZOOM_SIGNAL_OF[(sig, mono)], tpow, "")
     for r, (sig, tpow, mono) in ROWS.items() if (sig, mono) in _ZOOM_SIGNAL_OF}
 
-# Motion models: the geometric rows of d (the fixed rows I_sx, I_sy, I_t included) and
-# the quantities their parameters give.
-_TRANSLATION = ("Ix", "Iy", "IxDx", "IxDy", "IyDx", "IyDy", "Isx", "Isy", "It")
-_MOTION_ROWS = {
-    "translation": _TRANSLATION,
-    "affine": _TRANSLATION + ("tIx", "tIy", "tIxDx", "tIxDy", "tIyDx", "tIyDy"),
-}
-_MOTION_OUTPUTS = {
-    "translation": ("Ux", "Uy", "Uz"),
-    "affine": ("Ux", "Uy", "Uz", "growth", "rotation", "Zx_t", "Zy_t", "Uz_err",
-               "growth_err", "rotation_err"),
-}
-# rows a 1-D grid (ds_y = 0) drops: their ds_y part is gone, and under translation their
-# dt part (d(dy/dt)/dx) is zero; under affine motion it is a free flow gradient, kept
-_ROWS_1D_DROPPED = {"translation": ("IyDx", "Isy"), "affine": ("Isy",)}
-MOTIONS = tuple(_MOTION_ROWS)
+# A model has two axes, each an object below: the motion model (how the surface patch
+# moves) and the brightness model (how its brightness changes).  Each carries its rows,
+# its outputs and what it asks of the data, so that the driver, get_model and the bench
+# read properties instead of comparing names.
 
-# Brightness models: the rows of I they add, and the quantities they estimate.
-_BRIGHTNESS_ROWS = {
-    "bcc": (),
-    "hf": ("I", "tI"),
-    "full": ("I", "IDx", "IDy", "tI", "tIDx", "tIDy"),
-}
-BRIGHTNESS_OUTPUTS = {
-    "bcc": (),
-    "hf": ("a1", "a2"),
-    "full": ("a1", "a2", "a1x", "a1y", "a2x", "a2y"),
-}
-MODELS = tuple(_BRIGHTNESS_ROWS)
+def _has_t_factor(rows: tuple[str, ...]) -> bool:
+    # a row with a factor t (temporal power >= 1) is constant, and so useless, unless t
+    # varies over the temporal window: the model needs a time axis with frames either side
+    return any(ROWS[r][1] > 0 for r in rows)
+
+
+@dataclass(frozen=True)
+class MotionModel:
+    """How the surface patch moves: the geometric rows of d and what they give.
+
+    Its disentangling (parameter vectors to world velocities) is a function in
+    :mod:`estimator.disentangle` registered for this object there
+    (:func:`estimator.disentangle.disentangles`): this module is below that one and
+    cannot name it.
+
+    Attributes
+    ----------
+    name : str
+        What the settings (``motion=``), the CLI and the sweeps call it.
+    rows : tuple of str
+        The geometric rows of d in order, the fixed rows ``I_sx, I_sy, I_t`` included
+        (keys of :data:`ROWS`).
+    outputs : tuple of str
+        The quantities its parameters give besides ``Z, Zx, Zy, disparity``.
+    rows_dropped_1d : tuple of str
+        The rows a 1-D grid (``ds_y = 0``) drops: those that would carry only ``ds_y``
+        or a parameter the model fixes at zero.
+    """
+
+    name: str
+    rows: tuple[str, ...]
+    outputs: tuple[str, ...]
+    rows_dropped_1d: tuple[str, ...]
+
+    @property
+    def needs_time(self) -> bool:
+        """Whether it needs frames either side of the reference frame (rows with a factor
+        t): such a motion has no meaning for a light field of one frame."""
+        return _has_t_factor(self.rows)
+
+
+@dataclass(frozen=True)
+class BrightnessModel:
+    """How the patch's brightness changes: the rows of ``I`` it adds to d.
+
+    Attributes
+    ----------
+    name : str
+        What ``model=``, the CLI and the sweeps call it.
+    rows : tuple of str
+        The rows it adds (keys of :data:`ROWS`), after the motion model's.
+    outputs : tuple of str
+        The brightness parameters it estimates.
+    """
+
+    name: str
+    rows: tuple[str, ...]
+    outputs: tuple[str, ...]
+
+    @property
+    def needs_time(self) -> bool:
+        """Whether it needs frames either side of the reference frame: a change of
+        brightness is one over time (rows with a factor t)."""
+        return _has_t_factor(self.rows)
+
+
+_TRANSLATION_ROWS = ("Ix", "Iy", "IxDx", "IxDy", "IyDx", "IyDy", "Isx", "Isy", "It")
+TRANSLATION = MotionModel(
+    "translation", _TRANSLATION_ROWS, ("Ux", "Uy", "Uz"),
+    # under translation the dt part of I_y Δx (d(dy/dt)/dx) is zero, so on a 1-D grid,
+    # without its ds_y part, the row is empty
+    rows_dropped_1d=("IyDx", "Isy"))
+AFFINE = MotionModel(
+    "affine", _TRANSLATION_ROWS + ("tIx", "tIy", "tIxDx", "tIxDy", "tIyDx", "tIyDy"),
+    ("Ux", "Uy", "Uz", "growth", "rotation", "Zx_t", "Zy_t", "Uz_err", "growth_err",
+     "rotation_err"),
+    # under affine motion the dt part of I_y Δx is a free flow gradient: kept
+    rows_dropped_1d=("Isy",))
+# name (what motion= and the CLI take) -> motion model
+MOTION_MODELS: dict[str, MotionModel] = {m.name: m for m in (TRANSLATION, AFFINE)}
+MOTIONS = tuple(MOTION_MODELS)
+
+# name (what model= and the CLI take) -> brightness model
+BRIGHTNESS_MODELS: dict[str, BrightnessModel] = {b.name: b for b in (
+    BrightnessModel("bcc", (), ()),
+    BrightnessModel("hf", ("I", "tI"), ("a1", "a2")),
+    BrightnessModel("full", ("I", "IDx", "IDy", "tI", "tIDx", "tIDy"),
+                    ("a1", "a2", "a1x", "a1y", "a2x", "a2y")),
+)}
+MODELS = tuple(BRIGHTNESS_MODELS)
+
+# what the camera axes give under every model
+_PLANE_OUTPUTS = ("Z", "Zx", "Zy", "disparity")
 
 
 @dataclass(frozen=True)
@@ -109,8 +183,10 @@ class Model:
 
     Attributes
     ----------
-    name : {"bcc", "hf", "full"}
-        The brightness model.
+    brightness : BrightnessModel
+        One of :data:`BRIGHTNESS_MODELS`.
+    motion : MotionModel
+        One of :data:`MOTION_MODELS`.
     rows : tuple of str
         Data rows in order (keys of :data:`ROWS`).
     grid_dims : {1, 2}
@@ -118,15 +194,23 @@ class Model:
         (dimension 2).
     static : bool
         A light field of one frame: no time axis, no motion, no brightness change.
-    motion : {"translation"}
-        The motion model (:data:`MOTIONS`).
     """
 
-    name: str
+    brightness: BrightnessModel
+    motion: MotionModel
     rows: tuple[str, ...]
     grid_dims: int
     static: bool = False
-    motion: str = "translation"
+
+    @property
+    def name(self) -> str:
+        """The brightness model's name (what ``model=`` and ``Estimate.model`` say)."""
+        return self.brightness.name
+
+    @property
+    def needs_time(self) -> bool:
+        """Whether either axis needs frames either side of the reference frame."""
+        return self.brightness.needs_time or self.motion.needs_time
 
     @property
     def n(self) -> int:
@@ -150,37 +234,74 @@ class Model:
     def outputs(self) -> tuple[str, ...]:
         """The quantities estimated, besides ``model_error``."""
         if self.static:
-            return ("Z", "Zx", "Zy", "disparity")
-        return (("Z", "Zx", "Zy", "disparity") + _MOTION_OUTPUTS[self.motion]
-                + BRIGHTNESS_OUTPUTS[self.name])
+            return _PLANE_OUTPUTS
+        return _PLANE_OUTPUTS + self.motion.outputs + self.brightness.outputs
 
 
-def get_model(name: str, grid_dims: int = 2, static: bool = False,
-              motion: str = "translation") -> Model:
+def _lookup(model, registry: dict, kind: type, what: str):
+    # a name (what the settings hold) or the object itself (a model not in the registry)
+    if isinstance(model, kind):
+        return model
+    if model not in registry:
+        raise ValueError(f"unknown {what} {model!r}; expected one of {tuple(registry)}")
+    return registry[model]
+
+
+def one_frame_problem(brightness, motion: MotionModel) -> str | None:
+    """Why ``brightness`` (brightness models) with ``motion`` cannot be estimated from a
+    light field of one frame, or None if they can: the message the driver's
+    :class:`~estimator.settings.InputError` and :func:`get_model`'s ``ValueError`` give.
+
+    Only the axes that need no time axis apply (the cameras alone give depth and slopes).
+    """
+    still_motion = [m.name for m in MOTION_MODELS.values() if not m.needs_time]
+    still = [b.name for b in BRIGHTNESS_MODELS.values() if not b.needs_time]
+    if motion.needs_time:
+        return (f"motion {motion.name!r} needs a time axis; a light field of one frame has "
+                f"no motion (motion {still_motion[0]!r}, model {still[0]!r})")
+    bad = [b.name for b in brightness if b.needs_time]
+    if bad:
+        return (f"models {bad} need a time axis (brightness change over frames); a light "
+                f"field of one frame takes model {still[0]!r}")
+    return None
+
+
+def get_model(name: str | BrightnessModel, grid_dims: int = 2, static: bool = False,
+              motion: str | MotionModel = TRANSLATION.name) -> Model:
     """The brightness model ``name`` with the motion model ``motion`` on a
     ``grid_dims``-dimensional camera grid.
 
-    ``static``: a light field of one frame.  Only brightness constancy across the views
-    applies (``bcc``); the rows are the geometric ones without ``I_t``, and the null space
-    has one dimension per camera axis."""
-    if name not in _BRIGHTNESS_ROWS:
-        raise ValueError(f"unknown model {name!r}; expected one of {MODELS}")
-    if motion not in _MOTION_ROWS:
-        raise ValueError(f"unknown motion model {motion!r}; expected one of {MOTIONS}")
+    Parameters
+    ----------
+    name : str or BrightnessModel
+        A name of :data:`MODELS`, or a brightness model object.
+    grid_dims : {1, 2}
+    static : bool
+        A light field of one frame.  Only the axes that need no time axis apply
+        (``bcc`` with ``translation``); the rows are the geometric ones without ``I_t``,
+        and the null space has one dimension per camera axis.
+    motion : str or MotionModel
+        A name of :data:`MOTIONS`, or a motion model object.
+
+    Raises
+    ------
+    ValueError
+        An unknown name, a bad ``grid_dims``, or a model that needs a time axis for a
+        static light field (:func:`one_frame_problem`).
+    """
+    brightness = _lookup(name, BRIGHTNESS_MODELS, BrightnessModel, "model")
+    motion = _lookup(motion, MOTION_MODELS, MotionModel, "motion model")
     if grid_dims not in (1, 2):
         raise ValueError(f"grid_dims must be 1 or 2, got {grid_dims}")
-    rows = _MOTION_ROWS[motion] + _BRIGHTNESS_ROWS[name]
+    rows = motion.rows + brightness.rows
     if static:
-        if name != "bcc":
-            raise ValueError(f"model {name!r} needs a time axis (brightness change over "
-                             "frames); a light field of one frame takes model 'bcc'")
+        problem = one_frame_problem((brightness,), motion)
+        if problem:
+            raise ValueError(problem)
         rows = tuple(r for r in rows if r != "It")
-    if static and motion != "translation":
-        raise ValueError(f"motion {motion!r} needs a time axis; a light field of one frame "
-                         "has no motion")
     if grid_dims == 1:
-        rows = tuple(r for r in rows if r not in _ROWS_1D_DROPPED[motion])
-    return Model(name, rows, grid_dims, static, motion)
+        rows = tuple(r for r in rows if r not in motion.rows_dropped_1d)
+    return Model(brightness, motion, rows, grid_dims, static)
 
 
 def covering_rows(models) -> tuple[str, ...]:

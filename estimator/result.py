@@ -22,19 +22,29 @@ class Estimate(Mapping):
         brightness parameters (``a1, a2`` for hf; also ``a1x, a1y, a2x, a2y`` for full)
         and ``model_error``.  NaN on border pixels and where the estimate is degenerate.
     model : str
-        The brightness model.
+        The brightness model (:data:`estimator.models.MODELS`).
     interior : ndarray of bool, shape (H, W)
         Pixels free of border effects (the window and filters fit inside the image).
     settings : dict
         The settings used, including the filters chosen per axis and the backend that ran.
+    motion : str or None
+        The motion model (:data:`estimator.models.MOTIONS`), read-only: the other axis of
+        the model, beside ``model``.  Default ``settings["motion"]`` (kept there too), or
+        None for a map with no motion model (a refocused light field).
     """
 
     def __init__(self, maps: dict[str, np.ndarray], model: str, interior: np.ndarray,
-                 settings: dict | None = None):
+                 settings: dict | None = None, motion: str | None = None):
         self.maps = maps
         self.model = model
         self.interior = interior
         self.settings = {} if settings is None else settings
+        self._motion = self.settings.get("motion") if motion is None else motion
+
+    @property
+    def motion(self) -> str | None:
+        """The motion model's name (``settings["motion"]`` by default)."""
+        return self._motion
 
     def __getitem__(self, name: str) -> np.ndarray:
         try:
@@ -68,8 +78,7 @@ class Estimate(Mapping):
 
     def __repr__(self) -> str:
         H, W = self.shape
-        motion = self.settings.get("motion")
-        model = f"{self.model}" + (f", motion {motion}" if motion else "")
+        model = f"{self.model}" + (f", motion {self.motion}" if self.motion else "")
         return (f"<Estimate model {model}, {H}x{W}, valid {100 * self.valid_fraction():.1f} % "
                 f"of {int(self.interior.sum())} interior pixels; "
                 f"{', '.join(self.maps)}>")

@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 
 from .filters import FILTER_NAMES
-from .models import MOTIONS
+from .models import MOTIONS, TRANSLATION
 
 __all__ = ["InputError", "EstimatorSettings", "METHODS", "COMBINE", "DEFAULTS"]
 
@@ -89,7 +89,7 @@ class EstimatorSettings:
     zoom_correction: bool = True
     band_rows: int | None = None
     combine: str = "inverse_variance"
-    motion: str = "translation"
+    motion: str = TRANSLATION.name
 
     def __post_init__(self) -> None:
         """Refuse settings that are of the wrong type or out of range (InputError naming

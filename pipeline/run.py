@@ -237,6 +237,14 @@ def choose_strategy(source, o: RunOptions) -> tuple[object, list[str]]:
     return SinglePass(tuple(models), settings), notes
 
 
+def _motion_needs_time(name: str) -> bool:
+    """Whether a motion model (by name) needs a time axis; an unknown name is left to the
+    settings' own check."""
+    from gridflow.estimator.models import MOTION_MODELS
+
+    return name not in MOTION_MODELS or MOTION_MODELS[name].needs_time
+
+
 def _refocus_strategy(source, o: RunOptions, settings: dict, notes: list):
     from gridflow.estimator import DEFAULTS, InputError
     from gridflow.estimator.lightfield import (SELECT_DEFAULTS, SELECTS, check_shears,
@@ -252,7 +260,7 @@ def _refocus_strategy(source, o: RunOptions, settings: dict, notes: list):
         raise UsageError(f"a light field of one frame is refocused with model bcc, got "
                          f"--model {','.join(o.models)} (--shears none: the single pass)")
     given = [flag for key, flag in _SINGLE_PASS_ONLY.items() if key in settings
-             and not (key == "motion" and settings[key] == "translation")
+             and not (key == "motion" and not _motion_needs_time(settings[key]))
              and not (key in ("slant_correction", "zoom_correction") and settings[key])]
     if given:
         raise UsageError(f"{', '.join(given)}: the estimator's single pass only; a light "

@@ -168,7 +168,7 @@ def _run(a, work: Path) -> None:
         wall, cpu, _, _ = _gridflow("estimate", rec, "-o", out, "--motion", "affine", *span, *extra)
         results.append((label, out, wall, cpu))
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None, env=worker_env(1)) as cluster:
+                      dashboard_address=":0", env=worker_env(1)) as cluster:
         out = work / "cmp_cluster.zarr"
         wall, cpu, _, _ = _gridflow("estimate", rec, "-o", out, "--motion", "affine", *span, "--connect",
                                     cluster.scheduler_address)

@@ -318,7 +318,7 @@ def test_a_local_dask_cluster_gives_the_same_store(recording, tmp_path):
     local, remote = tmp_path / "local.zarr", tmp_path / "remote.zarr"
     run_series(recording, local, every=3, settings=settings)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster:
+                      dashboard_address=":0") as cluster:
         rep = run_series(recording, remote, every=3, settings=settings,
                          connect=cluster.scheduler_address)
     assert rep.done == 11

@@ -99,3 +99,30 @@ def _write(tmp_path):
     p = tmp_path / "spec.toml"
     p.write_text(SPEC)
     return p
+
+
+@pytest.mark.slow
+def test_a_local_cluster_starts_while_the_dashboard_port_is_taken():
+    """Another dask (a user's dashboard, a second run) holding port 8787 must not stop a
+    local cluster from starting: its dashboard takes a free port (was: 'Port 8787 is
+    already in use')."""
+    import socket
+
+    from gridflow.pipeline.executors import make_client
+
+    held = socket.socket()
+    try:
+        held.bind(("", 8787))
+        held.listen(1)
+    except OSError:
+        held.close()
+        held = None            # already taken by something else: the same situation
+    try:
+        client = make_client(workers=1, timeout=60)
+        try:
+            assert client.submit(sum, [1, 2]).result(timeout=60) == 3
+        finally:
+            client.close()
+    finally:
+        if held is not None:
+            held.close()

@@ -104,8 +104,10 @@ def _write(tmp_path):
 @pytest.mark.slow
 def test_a_local_cluster_starts_while_the_dashboard_port_is_taken():
     """Another dask (a user's dashboard, a second run) holding port 8787 must not stop a
-    local cluster from starting: its dashboard takes a free port (was: 'Port 8787 is
-    already in use')."""
+    local cluster from starting: its dashboard asks for a free port.  (With the default
+    port dask retries on others; under load the retries ran out once, 'Port 8787 is
+    already in use', and a leaked socket's warning failed another test.  Alone, the
+    default port also passes this test.)"""
     import socket
 
     from gridflow.pipeline.executors import make_client

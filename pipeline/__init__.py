@@ -7,8 +7,8 @@
   ``dask.distributed`` cluster (:mod:`.executors`);
 - the strategies that estimate a step (:mod:`.strategies`: the estimator's single pass,
   a refocused light field);
-- :func:`growth_table`, :func:`draw_growth` (:mod:`.growth`): what a grower reads from a
-  map series.
+- :func:`growth_report`, :func:`growth_table`, :func:`draw_growth` (:mod:`.growth`): what
+  a grower reads from a map series.
 
 This package imports the estimator and the formats (``gridflow``), never the benchmark
 (:mod:`gridflow.bench`), which builds on it.
@@ -16,12 +16,13 @@ This package imports the estimator and the formats (``gridflow``), never the ben
 
 from .run import RunOptions, RunReport, estimate
 
-__all__ = ["estimate", "RunOptions", "RunReport", "growth_table", "draw_growth"]
+__all__ = ["estimate", "RunOptions", "RunReport", "growth_report", "growth_table",
+           "draw_growth"]
 
 
 def __getattr__(name):
     # the report's pandas and matplotlib only when asked for
-    if name in ("growth_table", "draw_growth"):
+    if name in ("growth_report", "growth_table", "draw_growth"):
         from . import growth
 
         return getattr(growth, name)

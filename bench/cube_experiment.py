@@ -16,7 +16,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from gridflow.estimator import estimate_models
 from gridflow.scenes import FACE_NAMES, CubeScene, face_interior, spot_angle
@@ -39,6 +38,11 @@ COLUMNS = ["face", "region", "model", "n_pixels", "n_valid", "q_rel_Uz", "q_abs_
 SCALE = 135.0
 RIGHT_DEG = 22.5
 ALMOST = 0.9
+
+# The estimator's window on the cube (and the leaf): the 67-px left face of a 256-px image
+# needs a smaller window than the sinusoid's sigma 16 px, 65 taps
+SIGMA = 8.0          # px
+WINDOW = 33          # taps
 
 
 def run_cube(data, **settings):
@@ -102,6 +106,8 @@ def cube_table(data, results, margin: float | None = None) -> pd.DataFrame:
     """One row per (visible face, region, model): Eq. 22 and medians over the region
     (:func:`regions`; ``margin`` default the window's radius) and the estimator's
     interior."""
+    import pandas as pd
+
     face = data.truth["face"].astype(int)
     if margin is None:
         margin = next(iter(results.values())).settings["window"] // 2
@@ -411,7 +417,7 @@ class CubeReport:
 
 
 def run_cube_experiment(scene: CubeScene, cache, *, csv, fig_dir, doc=None,
-                        sigma: float = 8.0, window: int = 33,
+                        sigma: float = SIGMA, window: int = WINDOW,
                         temporal_radius: int | None = None,
                         progress: bool = True) -> CubeReport:
     """Render ``scene`` into ``cache`` (or find it there), estimate, score, draw, write.
@@ -428,20 +434,27 @@ def run_cube_experiment(scene: CubeScene, cache, *, csv, fig_dir, doc=None,
     doc : path, optional
         A markdown file whose ``cube`` block is rewritten (``docs/reproduction.md``).
     sigma, window
-        The estimator's window (the 67-px left face of a 256-px image needs a smaller one
-        than the sinusoid's 16).
+        The estimator's window (:data:`SIGMA`, :data:`WINDOW`: the 67-px left face of a
+        256-px image needs a smaller one than the sinusoid's 16).
     temporal_radius : int, optional
         Omega over frames -R..R (default: the estimator's).
     progress : bool
         The render's progress bar.
+
+    Every output (and the cache) is checked before anything is rendered.
     """
-    from gridflow.io import atomic_write
+    from gridflow.io import atomic_write, check_output
     from gridflow.loader import load_folder
     from gridflow.scenes.render import render_cube
 
     from . import figures as F
     from .markdown import rewrite_block
 
+    check_output(csv, suffixes=".csv", what="--csv")
+    check_output(fig_dir, suffixes=None, what="--fig-dir")
+    check_output(cache, suffixes=None, what="--cache")
+    if doc:
+        check_output(doc, suffixes=".md", what="--write-doc")
     t0 = time.perf_counter()
     folder = render_cube(scene, cache, progress=progress)
     data = load_folder(folder)

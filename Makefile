@@ -28,7 +28,7 @@ help:
 # A module added or removed needs the tree made again: MODULES lists them, and the list
 # is rewritten (re-triggering the install) only when it changes.
 MODULES     := $(sort $(wildcard base/*.py estimator/*.py generators/*.py scenes/*.py \
-                 pipeline/*.py bench/*.py bench/sweeps/*.toml))
+                 pipeline/*.py bench/*.py bench/cli/*.py bench/sweeps/*.toml))
 MODULE_LIST := build/.modules
 $(shell mkdir -p build && echo "$(MODULES)" | cmp -s - $(MODULE_LIST) || echo "$(MODULES)" > $(MODULE_LIST))
 

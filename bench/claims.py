@@ -48,7 +48,8 @@ from gridflow.estimator import MODELS
 from gridflow.estimator.models import AFFINE, TRANSLATION
 
 __all__ = ["check_claims", "claims_markdown", "render_checks", "write_claims", "CLAIMS",
-           "missing_data", "breakdown", "paper_terms", "paper_terms_markdown"]
+           "missing_data", "breakdown", "paper_terms", "paper_terms_markdown",
+           "claims_report"]
 
 
 BREAK = 0.1
@@ -751,3 +752,58 @@ def write_claims(table: pd.DataFrame, doc=None, csv=None, source: str = "",
             text = replace_block(text, "claims-checks", render_checks())
         with atomic_write(doc, "w") as fh:
             fh.write(text)
+
+
+def claims_report(csvs, *, doc=None, csv=None, terms=None) -> list[str]:
+    """What ``gridflow claims`` does: check the observations on each sweep CSV of ``csvs``
+    (:func:`check_claims`) and, as asked, write the verdicts of one sweep to ``csv``, its
+    blocks of the markdown ``doc`` (:func:`write_claims`), and the paper's quantitative
+    statements under each sweep's setup to ``terms`` (:func:`paper_terms`; with several
+    sweeps also ``doc``'s paper-terms block).  Every output is checked before anything is
+    read.
+
+    Returns the report's lines: per sweep its verdicts, then the files written."""
+    from gridflow.errors import UsageError
+    from gridflow.io import atomic_write, check_output
+
+    from .figures import setup_label
+    from .markdown import rewrite_block
+    from .sweep import read_sweep_csv
+
+    if csv:
+        if len(csvs) > 1:
+            raise UsageError("--write-csv takes the verdicts of one sweep; got "
+                             f"{len(csvs)} sweep CSVs (use --write-terms to compare them)")
+        check_output(csv, suffixes=".csv", inputs=csvs, what="--write-csv")
+    if terms:
+        check_output(terms, suffixes=".csv", inputs=csvs, what="--write-terms")
+    if doc:
+        check_output(doc, suffixes=".md", inputs=csvs, what="--write-doc")
+    tables, lines = {}, []
+    for path in csvs:
+        df = read_sweep_csv(path)
+        table = check_claims(df)
+        setup = setup_label(df)
+        label = setup.replace(" setup", "", 1)
+        if label in tables:
+            raise UsageError(f"{path}: a second sweep of the {label} setup; --write-terms "
+                             "compares one sweep per setup")
+        tables[label] = table
+        lines += [f"{path} ({setup}):", table.to_string(
+            index=False, columns=["id", "verdict", "parts", "numbers"], max_colwidth=110)]
+        if doc or csv:
+            names = df["sweep"].unique() if "sweep" in df else []
+            tag = f"claims:{names[0]}" if len(names) == 1 else "claims"
+            write_claims(table, doc=doc, csv=csv, source=path, tag=tag)
+    if terms or (doc and len(csvs) > 1):
+        stated = paper_terms(tables)
+        if stated.empty:
+            raise UsageError("--write-terms: none of the sweeps tests the paper's "
+                             "observations (a growth sweep has no paper terms)")
+        if terms:
+            with atomic_write(terms, "w") as fh:
+                stated.to_csv(fh, index=False)
+        if doc:
+            rewrite_block(doc, "paper-terms",
+                          paper_terms_markdown(stated, list(tables), " ".join(map(str, csvs))))
+    return lines + [f"wrote {p}" for p in (doc, csv, terms) if p]

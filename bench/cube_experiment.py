@@ -16,12 +16,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from gridflow.estimator import estimate_models
-from gridflow.scenes import FACE_NAMES, CubeScene, face_interior, spot_angle
-
 from gridflow.metrics import q_abs, q_rel
+from gridflow.scenes import FACE_NAMES, CubeScene, face_interior, spot_angle
+from gridflow.scenes.render import RENDER_CACHE
 
 __all__ = ["run_cube_experiment", "CubeReport", "run_cube", "cube_table", "fig1",
            "observation11", "observation12", "regions", "cube_markdown", "angular_errors",
@@ -29,11 +28,10 @@ __all__ = ["run_cube_experiment", "CubeReport", "run_cube", "cube_table", "fig1"
 
 # The POV-Ray studies' window (the cube, its variants, the leaf, the peers' motion
 # comparison): sigma 8 px, 33 taps, because the 67-px left face of a 256-px image needs a
-# smaller window than the sinusoid's 16 px / 65 taps.  And where their renders are cached
-# (not committed).
-CUBE_SIGMA = 8.0
-CUBE_WINDOW = 33
-RENDER_CACHE = "work/cube"
+# smaller window than the sinusoid's 16 px / 65 taps.  Their renders are cached (not
+# committed) in the scenes' RENDER_CACHE.
+CUBE_SIGMA = 8.0     # px
+CUBE_WINDOW = 33     # taps
 
 COLUMNS = ["face", "region", "model", "n_pixels", "n_valid", "q_rel_Uz", "q_abs_Ux", "q_abs_Uy",
            "q_rel_Z", "q_abs_Zx", "q_abs_Zy", "median_model_error", "median_rel_Uz",
@@ -48,7 +46,6 @@ COLUMNS = ["face", "region", "model", "n_pixels", "n_valid", "q_rel_Uz", "q_abs_
 SCALE = 135.0
 RIGHT_DEG = 22.5
 ALMOST = 0.9
-
 
 def run_cube(data, **settings):
     """Estimate all three models on ``data`` (a GridVolume with cube truth)."""
@@ -111,6 +108,8 @@ def cube_table(data, results, margin: float | None = None) -> pd.DataFrame:
     """One row per (visible face, region, model): Eq. 22 and medians over the region
     (:func:`regions`; ``margin`` default the window's radius) and the estimator's
     interior."""
+    import pandas as pd
+
     face = data.truth["face"].astype(int)
     if margin is None:
         margin = next(iter(results.values())).settings["window"] // 2
@@ -443,14 +442,21 @@ def run_cube_experiment(scene: CubeScene, cache, *, csv, fig_dir, doc=None,
         Omega over frames -R..R (default: the estimator's).
     progress : bool
         The render's progress bar.
+
+    Every output (and the cache) is checked before anything is rendered.
     """
-    from gridflow.io import atomic_write
+    from gridflow.io import atomic_write, check_output
     from gridflow.loader import load_folder
     from gridflow.scenes.render import render_cube
 
     from . import figures as F
     from .markdown import rewrite_block
 
+    check_output(csv, suffixes=".csv", what="--csv")
+    check_output(fig_dir, suffixes=None, what="--fig-dir")
+    check_output(cache, suffixes=None, what="--cache")
+    if doc:
+        check_output(doc, suffixes=".md", what="--write-doc")
     t0 = time.perf_counter()
     folder = render_cube(scene, cache, progress=progress)
     data = load_folder(folder)

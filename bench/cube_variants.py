@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -23,7 +24,8 @@ from gridflow.scenes import CubeScene
 from .cube_experiment import (ALMOST, CUBE_SIGMA, CUBE_WINDOW, RIGHT_DEG, cube_table,
                               run_cube)
 
-__all__ = ["Variant", "VARIANTS", "run_cube_variants", "variants_markdown", "COLUMNS"]
+__all__ = ["Variant", "VARIANTS", "run_cube_variants", "cube_variants_study",
+           "variants_markdown", "COLUMNS"]
 
 
 @dataclass(frozen=True)
@@ -114,6 +116,34 @@ def run_cube_variants(cache, variants=VARIANTS, progress: bool = True,
         log("    " + ", ".join(f"{r.face}: {r.shown_right:.2f} drawn right"
                                   for r in sel.itertuples()) + f" ({seconds:.0f} s)")
     return pd.DataFrame(rows, columns=COLUMNS)
+
+
+def cube_variants_study(cache, *, csv, doc=None, progress: bool = True,
+                        log=print) -> tuple[pd.DataFrame, list[Path]]:
+    """What ``gridflow cube-variants`` does: :func:`run_cube_variants` on every variant,
+    the table written to ``csv`` and, with ``doc``, that markdown file's ``cube-variants``
+    block rewritten from the CSV as written (so the doc and the file agree digit for
+    digit).  The outputs and the cache are checked before anything is rendered.
+
+    Returns the table and the files written."""
+    from gridflow.io import atomic_write, check_output
+
+    from .markdown import rewrite_block
+
+    check_output(csv, suffixes=".csv", what="--csv")
+    check_output(cache, suffixes=None, what="--cache")
+    if doc:
+        check_output(doc, suffixes=".md", what="--write-doc")
+    log(f"the cube in {len(VARIANTS)} variants, one option changed at a time: each scene "
+        "rendered with POV-Ray once (cached in the --cache folder; 1-5 min each the first "
+        "time) and estimated (full model)")
+    df = run_cube_variants(cache, progress=progress, log=log)
+    with atomic_write(csv, "w") as fh:
+        df.to_csv(fh, index=False, float_format="%.6g")
+    written = [Path(csv)]
+    if doc:
+        written.append(rewrite_block(doc, "cube-variants", variants_markdown(pd.read_csv(csv))))
+    return df, written
 
 
 # the smallest move of a face's drawn-right fraction the prose calls a change: a tenth of

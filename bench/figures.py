@@ -31,7 +31,8 @@ from gridflow.estimator.models import AFFINE, TRANSLATION  # noqa: E402
 
 from .claims import is_growth_sweep  # noqa: E402
 
-__all__ = ["fig2", "fig3", "fig4", "fig_peers_depth", "draw_figures", "sinusoid_fig2", "save",
+__all__ = ["fig2", "fig3", "fig4", "fig_peers_depth", "draw_figures", "figures_from_csv",
+           "sinusoid_fig2", "save",
            "setup_label",
            "STYLE", "MODEL_STYLE", "PARAM_LABEL"]
 
@@ -386,3 +387,22 @@ def draw_figures(out_dir, *, sweep: pd.DataFrame | None = None, fig2_too: bool =
     if fig2_too:
         written += save(sinusoid_fig2(), out_dir, "fig2")
     return written
+
+
+def figures_from_csv(out_dir, *, sweep_csv=None, fig2: bool = False,
+                     suffix: str = "") -> list[Path]:
+    """What ``gridflow figures`` does: :func:`draw_figures` from the sweep CSV
+    ``sweep_csv`` and/or Fig. 2, into ``out_dir`` (checked first); returns the paths
+    written."""
+    from gridflow.errors import UsageError
+    from gridflow.io import check_output
+
+    from .sweep import read_sweep_csv
+
+    out = check_output(out_dir, suffixes=None, what="--out")
+    if not all(c.isalnum() or c in "_.-" for c in suffix):
+        raise UsageError(f"--suffix {suffix!r}: use letters, digits, '_', '.' and '-' only")
+    if not (sweep_csv or fig2):
+        raise UsageError("nothing to draw: give --sweep CSV (Figs. 3, 4) and/or --fig2")
+    df = read_sweep_csv(sweep_csv) if sweep_csv else None
+    return draw_figures(out, sweep=df, fig2_too=fig2, suffix=suffix)

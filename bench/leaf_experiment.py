@@ -127,13 +127,18 @@ def run_leaf_experiment(scene, cache, *, csv, fig_dir, sigma: float = CUBE_SIGMA
                         window: int = CUBE_WINDOW, progress: bool = True) -> LeafReport:
     """Render ``scene`` into ``cache`` (or find it there), estimate with both motion
     models and every brightness model, score per region, write ``csv`` and
-    ``fig_dir/fig_leaf.{png,pdf}``."""
-    from gridflow.io import atomic_write
+    ``fig_dir/fig_leaf.{png,pdf}``.  The window is the cube's (:data:`~gridflow.bench.
+    cube_experiment.CUBE_SIGMA`, :data:`~gridflow.bench.cube_experiment.CUBE_WINDOW`); the
+    outputs and the cache are checked before anything is rendered."""
+    from gridflow.io import atomic_write, check_output
     from gridflow.loader import load_folder
     from gridflow.scenes.render import render_cube
 
     from . import figures as F
 
+    check_output(csv, suffixes=".csv", what="--csv")
+    check_output(fig_dir, suffixes=None, what="--fig-dir")
+    check_output(cache, suffixes=None, what="--cache")
     t0 = time.perf_counter()
     folder = render_cube(scene, cache, progress=progress)
     data = load_folder(folder)

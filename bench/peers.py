@@ -32,7 +32,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from gridflow.estimator import MODELS
 from gridflow.metrics import evaluate, hci_metrics
@@ -40,7 +39,7 @@ from gridflow.metrics import evaluate, hci_metrics
 from .cube_experiment import CUBE_SIGMA, CUBE_WINDOW
 
 __all__ = ["epi_structure_tensor", "DEPTH_METHODS", "run_depth", "compare_motion",
-           "MOTION_CASES", "run_peers", "PeersReport", "score_hci_scene", "check_hci_scene"]
+           "MOTION_CASES", "run_peers", "compare_peers", "PeersReport", "score_hci_scene", "check_hci_scene"]
 
 
 def _gauss(sigma: float, rmax: int | None = None) -> np.ndarray:
@@ -305,12 +304,15 @@ class PeersReport:
     motion : pandas.DataFrame
         One row per case, method and flow component (:func:`compare_motion`).
     written : list of Path
+    hci : (str, pandas.DataFrame), optional
+        :func:`score_hci_scene` where :func:`compare_peers` was given a scene.
     """
 
     label: str
     depth: pd.DataFrame
     motion: pd.DataFrame
     written: list
+    hci: tuple | None = None
 
 
 def run_peers(cache, *, csv_depth, csv_motion, fig_dir, write_hci=None,
@@ -337,6 +339,8 @@ def run_peers(cache, *, csv_depth, csv_motion, fig_dir, write_hci=None,
     progress : bool
         The renders' progress bars.
     """
+    import pandas as pd
+
     from gridflow.generators import make_sinusoid
     from gridflow.io import atomic_write
     from gridflow.loader import load_folder
@@ -372,6 +376,33 @@ def run_peers(cache, *, csv_depth, csv_motion, fig_dir, write_hci=None,
         motion.drop(columns="seconds").to_csv(fh, index=False, float_format="%.6g")
     written.append(Path(csv_motion))
     return PeersReport(label, table, motion, written)
+
+
+def compare_peers(cache, *, csv_depth, csv_motion, fig_dir, write_hci=None, hci=None,
+                  env=None, progress: bool = True) -> PeersReport:
+    """What ``gridflow peers`` does: :func:`run_peers` (its arguments), and with ``hci``
+    an HCI scene with truth, :func:`score_hci_scene` on it (the peers depthy and plenpy
+    run in the environment ``env``, default :data:`PEERS_ENV`).  The optical-flow peers'
+    packages, the outputs and the scene are checked first, so that a missing package or
+    a bad scene is refused before the minutes of the other peers and their files."""
+    from gridflow.errors import UsageError
+    from gridflow.io import check_output
+
+    try:                                # the optical-flow peers: the 'peers' extra
+        import cv2  # noqa: F401
+        import skimage.registration  # noqa: F401
+    except ImportError as e:
+        raise UsageError(f"gridflow peers needs the peer methods' packages ({e.name} is "
+                         "missing): pip install 'gridflow[peers]'") from None
+    for path in (csv_depth, csv_motion):
+        check_output(path, suffixes=".csv", what="output")
+    check_output(fig_dir, suffixes=None, what="--fig-dir")
+    scene = check_hci_scene(hci) if hci else None
+    r = run_peers(cache, csv_depth=csv_depth, csv_motion=csv_motion, fig_dir=fig_dir,
+                  write_hci=write_hci, progress=progress)
+    if hci:
+        r.hci = score_hci_scene(hci, env=env or PEERS_ENV, progress=progress, scene=scene)
+    return r
 
 
 # the Python light-field packages run in an environment of their own (make peers-env)
@@ -464,6 +495,8 @@ def score_hci_scene(folder, *, env=PEERS_ENV, progress=True,
 
     ``scene``: the scene already loaded by :func:`check_hci_scene` (else it is loaded).
     """
+    import pandas as pd
+
     import sys
 
     from gridflow.estimator.lightfield import stated_shears

@@ -9,7 +9,7 @@ gridflow's inverse-variance combination (each one entry changed in
 verdict with its sub-checks, and per quantitative statement of the paper gridflow's number
 under each (:func:`~gridflow.bench.claims.paper_terms`); :func:`readings_markdown` writes
 both as the documentation's block, so the prose there states no number of its own.
-``gridflow readings`` (``make readings``) runs it.
+``gridflow readings`` (``make readings``) runs :func:`readings_report`.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import pandas as pd
 
 from .claims import check_claims, paper_terms
 
-__all__ = ["READINGS", "readings_table", "readings_markdown"]
+__all__ = ["READINGS", "readings_table", "readings_markdown", "readings_report"]
 
 # sweep name -> what it reads differently (the sweeps' own spec files say how)
 READINGS = {
@@ -92,3 +92,44 @@ def readings_markdown(verdicts: pd.DataFrame, terms: pd.DataFrame) -> str:
                                               for n in names]
         lines.append("| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |")
     return "\n".join(lines)
+
+
+def readings_report(csvs, *, csv_verdicts, csv_terms, doc=None) -> list[str]:
+    """What ``gridflow readings`` does: each sweep CSV of ``csvs`` is the sweep of one
+    reading (a name of :data:`READINGS`); :func:`readings_table` on them, written to
+    ``csv_verdicts`` and ``csv_terms`` and, with ``doc``, that markdown file's
+    ``readings`` block rewritten from the files as written (so the doc and the CSVs agree
+    digit for digit).  Every output is checked before anything is read.
+
+    Returns the report's lines: the verdicts, then the files written."""
+    from gridflow.errors import UsageError
+    from gridflow.io import atomic_write, check_output
+
+    from .markdown import rewrite_block
+    from .sweep import read_sweep_csv
+
+    for path, what in ((csv_verdicts, "--csv-verdicts"), (csv_terms, "--csv-terms")):
+        check_output(path, suffixes=".csv", inputs=csvs, what=what)
+    if doc:
+        check_output(doc, suffixes=".md", inputs=csvs, what="--write-doc")
+    sweeps = {}
+    for path in csvs:
+        df = read_sweep_csv(path)
+        names = df["sweep"].unique() if "sweep" in df else []
+        if len(names) != 1 or names[0] not in READINGS:
+            raise UsageError(f"{path}: expected the sweep of one reading ("
+                             f"{', '.join(READINGS)}), got "
+                             f"{', '.join(map(str, names)) or 'none'}")
+        sweeps[names[0]] = df
+    verdicts, terms = readings_table(sweeps)
+    with atomic_write(csv_verdicts, "w") as fh:
+        verdicts.to_csv(fh, index=False)
+    with atomic_write(csv_terms, "w") as fh:
+        terms.to_csv(fh, index=False)
+    lines = [verdicts.to_string(index=False, max_colwidth=100),
+             f"wrote {csv_verdicts}, {csv_terms}"]
+    if doc:
+        rewrite_block(doc, "readings", readings_markdown(
+            pd.read_csv(csv_verdicts), pd.read_csv(csv_terms, keep_default_na=False)))
+        lines.append(f"wrote {doc}")
+    return lines

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 from gridflow.errors import UsageError
+from gridflow.scenes.render import RENDER_CACHE
 
 __all__ = ["make_recording", "make_leaf_recording"]
 
@@ -71,7 +72,7 @@ def make_recording(output, params=None, *, progress: bool = False) -> list[str]:
             f"{p.rhythm:g} sin(2 pi t / {p.period:g})), in {seconds:.1f} s"]
 
 
-def make_leaf_recording(output, scene=None, *, cache="work/cube",
+def make_leaf_recording(output, scene=None, *, cache=RENDER_CACHE,
                         progress: bool = False) -> list[str]:
     """Render the POV-Ray leaf as a recording (:class:`gridflow.scenes.LeafRecording`)
     into the recording store ``output``, with its truth per frame.

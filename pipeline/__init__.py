@@ -7,20 +7,21 @@
   ``dask.distributed`` cluster (:mod:`.executors`);
 - the strategies that estimate a step (:mod:`.strategies`: the estimator's single pass,
   a refocused light field);
-- :func:`growth_table`, :func:`draw_growth` (:mod:`.growth`): what a grower reads from a
-  map series.
+- :func:`growth_report`, :func:`growth_table`, :func:`draw_growth` (:mod:`.growth`): what
+  a grower reads from a map series.
 
 This package imports the estimator and the formats (``gridflow``), never the benchmark
 (:mod:`gridflow.bench`), which builds on it.
 """
 
-__all__ = ["estimate", "RunOptions", "RunReport", "growth_table", "draw_growth"]
+__all__ = ["estimate", "RunOptions", "RunReport", "growth_report", "growth_table",
+           "draw_growth"]
 
 # names imported on first use (PEP 562): importing one part (the executors, which the
 # benchmark's sweeps use) does not import the others, nor the growth report's pandas and
 # matplotlib
 _WHERE = {"estimate": "run", "RunOptions": "run", "RunReport": "run",
-          "growth_table": "growth", "draw_growth": "growth"}
+          "growth_report": "growth", "growth_table": "growth", "draw_growth": "growth"}
 
 
 def __getattr__(name):

@@ -1,17 +1,19 @@
 """What a grower reads from a map series: the growth per step over the leaf (median,
 mean, spread) and, with a recording that has growth truth, its error; the growth maps at
-chosen frames and the growth against time as figures.
+chosen frames and the growth against time as figures.  :func:`growth_report` is what
+``gridflow growth`` does.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from gridflow.errors import UsageError
 
-__all__ = ["growth_table", "draw_growth"]
+__all__ = ["growth_table", "draw_growth", "growth_report", "GrowthReport"]
 
 
 def growth_table(maps, truth=None, *, quantity: str = "growth"):
@@ -144,3 +146,51 @@ def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -
         fig.savefig(fh, format="png", dpi=110)
     plt.close(fig)
     return [out1, out2]
+
+
+@dataclass
+class GrowthReport:
+    """What :func:`growth_report` found and wrote.
+
+    Attributes
+    ----------
+    table : pandas.DataFrame
+        :func:`growth_table`.
+    written : list of Path
+        The figures (and the CSV) written.
+    lines : list of str
+        The report as text: the table, Q_rel against the truth where given, the files.
+    """
+
+    table: object
+    written: list = field(default_factory=list)
+    lines: list = field(default_factory=list)
+
+
+def growth_report(maps, truth=None, *, fig_dir="growth", csv=None,
+                  times=None) -> GrowthReport:
+    """The growth of the map series ``maps`` per step (:func:`growth_table`, against the
+    recording ``truth`` where given), drawn into ``fig_dir`` (:func:`draw_growth`, the maps
+    at ``times``) and, with ``csv``, the table written there.  The outputs are checked
+    before anything is read or written; a grower reads the median (the mean is moved by
+    the few pixels where the estimate breaks down)."""
+    from gridflow.io import atomic_write, check_output
+
+    if csv:
+        check_output(csv, suffixes=".csv", inputs=[maps], what="--csv")
+    check_output(fig_dir, suffixes=None, inputs=[maps], what="--fig-dir")
+    table = growth_table(maps, truth)
+    written = draw_growth(maps, table, fig_dir, times=times)
+    cols = ["frame", "median", "mean", "p10", "p90"] + (["truth", "q_rel"] if truth else [])
+    lines = [table[cols].to_string(index=False, float_format=lambda v: f"{v:.3g}")]
+    if truth:
+        lines.append(f"Q_rel(growth) over the steps: median {table['q_rel'].median():.3g}, "
+                     f"max {table['q_rel'].max():.3g}; correlation with the truth: of the "
+                     f"median {table['median'].corr(table['truth']):.4f}, of the mean "
+                     f"{table['mean'].corr(table['truth']):.4f}")
+    if csv:
+        with atomic_write(csv, "w") as fh:
+            table.to_csv(fh, index=False, float_format="%.6g")
+        written.append(Path(csv))
+    lines += [f"wrote {f}" for f in written]
+    return GrowthReport(table, written, lines)

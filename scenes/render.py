@@ -27,9 +27,12 @@ from gridflow.io import atomic_write
 
 from .cube import CubeScene, cube_truth
 
-__all__ = ["render_cube", "render_cube_lightfield", "povray_binary", "PovrayMissing",
+__all__ = ["RENDER_CACHE", "render_cube", "render_cube_lightfield", "povray_binary", "PovrayMissing",
            "RenderError", "IMAGE_PATTERN"]
 
+# where renders are cached by default (relative to the working folder): every command that
+# renders shares it, so a scene is rendered once
+RENDER_CACHE = "work/cube"
 IMAGE_PATTERN = "t{t:02d}_y{sy}_x{sx}.png"
 
 

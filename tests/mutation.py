@@ -45,7 +45,8 @@ TREE = Path(tempfile.gettempdir()) / "gridflow-mutants"
 LAYOUT = {"base": "gridflow", "estimator": "gridflow/estimator",
           "generators": "gridflow/generators", "scenes": "gridflow/scenes",
           "pipeline": "gridflow/pipeline",
-          "bench": "gridflow/bench", "bench/sweeps": "gridflow/bench/sweeps"}
+          "bench": "gridflow/bench", "bench/cli": "gridflow/bench/cli",
+          "bench/sweeps": "gridflow/bench/sweeps"}
 
 
 @dataclass(frozen=True)

@@ -270,3 +270,79 @@ def test_a_signal_as_the_temporary_is_made_leaves_nothing(tmp_path, monkeypatch,
     assert made, "the temporary was never made: the test did not reach its moment"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz"]
     assert (tmp_path / "a.npz").read_bytes() == b"old"
+
+
+def _subcommands():
+    import argparse
+
+    from gridflow.bench.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions
+               if isinstance(a, argparse._SubParsersAction))
+    return sub.choices
+
+
+def test_every_option_says_what_it_means():
+    """Every option and argument of every subcommand has a help that says more than its
+    default (was: the dataclass options said only "default X", some none at all)."""
+    import argparse
+    import re
+
+    bare = []
+    for name, p in _subcommands().items():
+        for act in p._actions:
+            if isinstance(act, argparse._HelpAction):
+                continue
+            text = re.sub(r"\s+", " ", act.help or "")
+            meaning = re.sub(r"\(?\bdefault\b.*$", "", text, flags=re.I).strip(" (;,:")
+            if act.help == argparse.SUPPRESS or len(meaning.split()) < 2:
+                bare.append(f"gridflow {name} {'/'.join(act.option_strings) or act.dest}: "
+                            f"{act.help!r}")
+    assert not bare, "options whose help says nothing of their meaning:\n" + "\n".join(bare)
+
+
+def test_parameter_options_read_their_help_from_the_docstrings():
+    """generate's and record's options are the fields of SinusoidParams and
+    RecordingParams, each with its docstring entry's first sentence (an entry "As
+    SinusoidParams" reads that one's), so the help cannot drift from the docs."""
+    from dataclasses import fields
+
+    from gridflow.bench.cli._common import field_docs
+    from gridflow.generators import SinusoidParams
+    from gridflow.generators.recording import RecordingParams
+
+    docs = field_docs(SinusoidParams)
+    assert docs["f"] == "Focal length in pixels."
+    assert docs["U_Y"] == "U_X, U_Y, U_Z: Velocity, world units per unit time."
+    assert docs["a2"].endswith("additionally per world unit.")      # "Eq. 11" not an end
+    rec = field_docs(RecordingParams)
+    assert rec["wavelength_x"] == docs["wavelength_x"]
+    assert rec["frame_interval"].startswith("Seconds between frames")
+    subs = _subcommands()
+    for cmd, cls in (("generate", SinusoidParams), ("record", RecordingParams)):
+        helps = {a.dest: a.help for a in subs[cmd]._actions}
+        expect = {**docs, **field_docs(cls)}
+        for fl in fields(cls):
+            text = expect[fl.name].rstrip(".").replace("``", "").replace("%", "%%")
+            assert helps[fl.name].startswith(text), (cmd, fl.name, helps[fl.name])
+            assert "(default " in helps[fl.name]
+
+
+def test_cli_defaults_come_from_the_library():
+    """The scenes' and experiments' defaults are the library's, not copies."""
+    from gridflow.bench.cube_experiment import SIGMA, WINDOW
+    from gridflow.bench.cli import build_parser
+    from gridflow.scenes import RENDER_CACHE, CubeScene, LeafRecording, LeafScene
+
+    ap = build_parser()
+    cube = ap.parse_args(["cube"])
+    d = CubeScene()
+    assert (cube.size, cube.grid, cube.frames, cube.texture_scale) == (
+        d.width, d.grid[0], d.frames, d.texture_scale)
+    assert (cube.sigma, cube.window, cube.cache) == (SIGMA, WINDOW, RENDER_CACHE)
+    leaf = ap.parse_args(["leaf"])
+    assert (leaf.growth, leaf.sigma, leaf.window) == (LeafScene().growth, SIGMA, WINDOW)
+    rec = ap.parse_args(["record-leaf", "-o", "x.zarr"])
+    assert (rec.margin, rec.frames, rec.cache) == (LeafRecording().margin,
+                                                   LeafRecording().frames, RENDER_CACHE)
+    assert "median" in _subcommands()["growth"].description

@@ -1,0 +1,93 @@
+"""Command-line interface, the top floor of gridflow (imported by no other module; its own
+modules import each other).
+
+Each command parses its arguments, calls one function of the library and prints what it
+reports.  The commands come in groups, a module each, each with ``register(subparsers)``:
+
+- :mod:`.estimate`: ``generate``, ``estimate``, ``evaluate`` (:mod:`gridflow.bench.single`,
+  :func:`gridflow.pipeline.estimate`);
+- :mod:`.recordings`: ``record``, ``record-leaf`` (:mod:`gridflow.bench.recordings`),
+  ``growth`` (:func:`gridflow.pipeline.growth_report`);
+- :mod:`.sweeps`: ``sweep`` (:mod:`gridflow.bench.sweep_job`), ``figures``
+  (:mod:`gridflow.bench.figures`), ``readings`` (:mod:`gridflow.bench.readings`),
+  ``claims`` (:mod:`gridflow.bench.claims`);
+- :mod:`.experiments`: ``cube``, ``cube-variants``, ``leaf``, ``peers``
+  (:mod:`gridflow.bench.cube_experiment`, :mod:`~gridflow.bench.cube_variants`,
+  :mod:`~gridflow.bench.leaf_experiment`, :mod:`~gridflow.bench.peers`).
+
+Choices, defaults and the parameters' help come from the library
+(:mod:`gridflow.estimator.settings`, the parameter dataclasses and their docstrings, the
+experiments' constants; :mod:`._common`), so the help cannot drift from what runs.
+Errors about the user's input (:mod:`gridflow.errors`, the estimator's ``InputError``, the
+operating system's) are printed in one line with exit status 2; anything else is a bug
+and keeps its traceback.  Heavy libraries are imported inside the commands that need them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from . import estimate, experiments, recordings, sweeps
+
+__all__ = ["main", "build_parser"]
+
+GROUPS = (estimate, recordings, sweeps, experiments)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The parser of every command (each group's :func:`register`)."""
+    from gridflow import __version__
+
+    ap = argparse.ArgumentParser(
+        prog="gridflow",
+        description="Surface motion, depth and slopes from a camera grid under changing "
+                    "illumination (Schuchert & Scharr, DAGM 2007), and the benchmark that "
+                    "reproduces the paper's figures.")
+    ap.add_argument("--version", action="version", version=f"gridflow {__version__}")
+    sub = ap.add_subparsers(dest="command", required=True)
+    for group in GROUPS:
+        group.register(sub)
+    return ap
+
+
+def _user_errors() -> tuple[type, ...]:
+    """The exceptions that are about the user's input, not bugs in gridflow."""
+    from gridflow.errors import GridflowError
+    from gridflow.estimator import InputError
+    from gridflow.pipeline.executors import ClusterError
+    from gridflow.scenes.render import PovrayMissing, RenderError
+
+    return (GridflowError, InputError, OSError, PovrayMissing, RenderError, ClusterError)
+
+
+def _log_to_stderr() -> None:
+    """The library reports long silent steps (first-run kernel compilation) at INFO level."""
+    import logging
+
+    log = logging.getLogger("gridflow")
+    if not log.handlers:
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("gridflow: %(message)s"))
+        log.addHandler(handler)
+        log.setLevel(logging.INFO)
+
+
+def main(argv=None) -> int:
+    a = build_parser().parse_args(argv)
+    _log_to_stderr()
+    from gridflow.pipeline.executors import Terminated, signals_raise
+
+    try:
+        # SIGTERM raises like Ctrl-C, so that a file being written is removed (atomic
+        # writes) and the interruption reads as one line, not a traceback
+        with signals_raise():
+            return a.func(a)
+    except _user_errors() as exc:
+        print(f"gridflow {a.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, Terminated) as exc:
+        name = "SIGTERM" if isinstance(exc, Terminated) else "SIGINT"
+        print(f"gridflow {a.command}: interrupted ({name}); outputs already written are "
+              "complete, the one being written was not left behind", file=sys.stderr)
+        return 143 if name == "SIGTERM" else 130

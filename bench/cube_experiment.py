@@ -265,7 +265,6 @@ def fig1(data, results, step: int = 12, scale: float = 135.0, margin: float | No
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.colors import ListedColormap, LogNorm
 
     from .figures import STYLE
 
@@ -281,104 +280,9 @@ def fig1(data, results, step: int = 12, scale: float = 135.0, margin: float | No
              "full": "full (spatially varying)"}
     with plt.rc_context(STYLE):
         fig, ax = plt.subplots(3, 4, figsize=(12.5, 9.6), constrained_layout=True)
-        for a, img, title in ((ax[0, 0], centre[0], "(a) first image"),
-                              (ax[0, 1], centre[-1], "(e) last image")):
-            a.imshow(img, cmap="gray", vmin=lo, vmax=hi)
-            a.set_title(title)
-        # the regions of the text
-        reg = np.full(ref.shape, np.nan)
-        reg[masks["silhouette"]] = 0
-        reg[masks["ridge"]] = 1
-        if "spot_border" in masks:
-            reg[masks["away"]] = 2
-            reg[masks["spot_border"]] = 3
-        a = ax[0, 2]
-        a.imshow(faint, cmap="gray", vmin=0, vmax=1)
-        cmap = ListedColormap(["#d62728", "#ff9f1c", "#7f7f7f", "#1f77b4"])
-        a.imshow(np.ma.masked_invalid(reg), cmap=cmap, vmin=-0.5, vmax=3.5, alpha=0.55,
-                 interpolation="nearest")
-        for colour, label in zip(cmap.colors, ("silhouette", "ridge", "elsewhere",
-                                               "spotlight border")):
-            a.plot([], [], "s", color=colour, label=label)
-        a.legend(loc="lower left", fontsize="x-small", framealpha=0.8)
-        a.set_title("regions (reference frame)")
-        # HF / full model error
-        a = ax[0, 3]
-        ratio = results["hf"]["model_error"] / results["full"]["model_error"]
-        ok = np.isfinite(ratio) & (ratio > 0)
-        a.imshow(faint, cmap="gray", vmin=0, vmax=1)
-        if ok.any():
-            lo_r, hi_r = np.percentile(ratio[ok], [2, 98])
-            rn = LogNorm(lo_r, hi_r)
-            im = a.imshow(np.ma.masked_where(~ok, ratio), cmap="viridis", norm=rn, alpha=0.85)
-            cb = fig.colorbar(im, ax=a, shrink=0.8, location="bottom", pad=0.02,
-                              label="HF / full model error")
-            # the range may lie within one decade, where a log axis has no major tick:
-            # five labelled ticks spread over it
-            ticks = np.geomspace(lo_r, hi_r, 5)
-            cb.set_ticks(ticks, labels=[f"{t:.2g}" for t in ticks])
-            cb.ax.minorticks_off()
-        a.set_title("HF vs full")
-        # one log range for the three models: from the 2nd percentile of the lowest to
-        # the 98th of the highest, so their levels compare at a glance
-        errs = {m: e["model_error"] for m, e in results.items()}
-        pos = [v[np.isfinite(v) & (v > 0)] for v in errs.values()]
-        pos = [v for v in pos if v.size]
-        norm = LogNorm(min(np.percentile(v, 2) for v in pos),
-                       max(np.percentile(v, 98) for v in pos)) if pos else None
-        for col, (model, err) in enumerate(errs.items()):
-            a = ax[1, col]
-            a.imshow(faint, cmap="gray", vmin=0, vmax=1)
-            good = np.isfinite(err) & (err > 0)
-            if good.any():
-                im = a.imshow(np.ma.masked_where(~good, err), cmap="inferno", norm=norm,
-                              alpha=0.8)
-                fig.colorbar(im, ax=a, shrink=0.8, location="bottom", pad=0.02,
-                             label="model error (one range for b-d)")
-            a.set_title(f"({'bcd'[col]}) model error, {names[model]}")
-        ax[1, 3].axis("off")
-        ax[1, 3].text(0, 0.5, "Model error: the largest of the\nthree smallest eigenvalues of J,"
-                      "\nb-d on one log range.\n\nMotion (bottom): U_Z along the\ndiagonal "
-                      f"at full length, U_X, U_Y\nscaled x{scale:g} against it; orange the\n"
-                      f"truth, the estimate green where\nits drawn direction is within "
-                      f"{RIGHT_DEG:g} deg\nof the truth, red elsewhere; arrows\nlonger "
-                      "than two grid steps clipped.", va="center", fontsize="small")
-        H, W = ref.shape
-        yy, xx = np.mgrid[step // 2:H:step, step // 2:W:step]
-        c45 = np.sqrt(0.5)          # U_Z drawn along the diagonal at its full length
-        on_cube = data.truth["face"][yy, xx] > 0
-        tz = data.truth["Uz"][yy, xx]
-        unit = abs(c45 * np.nanmedian(data.truth["Uz"])) * np.sqrt(2) / step
-        for col, (model, e) in enumerate(results.items()):
-            b = ax[2, col]
-            b.imshow(faint, cmap="gray", vmin=0, vmax=1)
-            ux, uy, uz = (e[q][yy, xx] for q in ("Ux", "Uy", "Uz"))
-            dx = scale * ux + c45 * uz
-            dy = scale * uy + c45 * uz
-            ok = np.isfinite(dx) & np.isfinite(dy) & on_cube
-            # the true vector is drawn one grid step long; longer ones are clipped at two
-            length = np.hypot(dx, dy) / unit
-            clip = np.where(length > 2 * step, 2 * step / np.maximum(length, 1e-12), 1.0)
-            t_ok = on_cube & np.isfinite(tz)
-            b.quiver(xx[t_ok], yy[t_ok], (c45 * tz)[t_ok], (c45 * tz)[t_ok], angles="xy",
-                     scale_units="xy", scale=unit, width=0.006, color="#ff9f1c",
-                     label="truth")
-            shown = angular_errors(e.maps, data.truth, scale)
-            right = shown[yy, xx] < RIGHT_DEG
-            for sel, colour, label in ((ok & right, "#2ca02c", "estimate, right way"),
-                                       (ok & ~right, "#d62728", "estimate, wrong way")):
-                b.quiver(xx[sel], yy[sel], (dx * clip)[sel], (dy * clip)[sel], angles="xy",
-                         scale_units="xy", scale=unit, width=0.004, color=colour,
-                         label=label)
-            fracs = []
-            for fid, fname in FACE_NAMES.items():
-                inner = masks["interior"] & e.interior & (data.truth["face"] == fid)
-                if inner.any():
-                    fracs.append(f"{fname} {_shown_right(shown, inner):.0%}")
-            b.set_title(f"({'fgh'[col]}) motion, {names[model].split(' ')[0]}; right way: "
-                        + ", ".join(fracs), fontsize="small")
-            if col == 0:
-                b.legend(loc="lower left", fontsize="x-small", framealpha=0.8)
+        _fig1_top(fig, ax[0], centre, ref, faint, masks, results, (lo, hi))
+        _fig1_errors(fig, ax[1], results, faint, names, scale)
+        _fig1_motion(ax[2], data, results, masks, faint, names, step, scale)
         ax[2, 3].axis("off")
         for a in ax.ravel():
             a.set_xticks([])
@@ -387,6 +291,121 @@ def fig1(data, results, step: int = 12, scale: float = 135.0, margin: float | No
         fig.suptitle("Fig. 1: a cube moving towards the cameras under a spotlight moving "
                      "right to left")
     return fig
+
+
+def _fig1_top(fig, ax, centre, ref, faint, masks, results, limits):
+    """Fig. 1's top row: the first and last images, the regions, HF / full model error."""
+    from matplotlib.colors import ListedColormap, LogNorm
+
+    lo, hi = limits
+    for a, img, title in ((ax[0], centre[0], "(a) first image"),
+                          (ax[1], centre[-1], "(e) last image")):
+        a.imshow(img, cmap="gray", vmin=lo, vmax=hi)
+        a.set_title(title)
+    # the regions of the text
+    reg = np.full(ref.shape, np.nan)
+    reg[masks["silhouette"]] = 0
+    reg[masks["ridge"]] = 1
+    if "spot_border" in masks:
+        reg[masks["away"]] = 2
+        reg[masks["spot_border"]] = 3
+    a = ax[2]
+    a.imshow(faint, cmap="gray", vmin=0, vmax=1)
+    cmap = ListedColormap(["#d62728", "#ff9f1c", "#7f7f7f", "#1f77b4"])
+    a.imshow(np.ma.masked_invalid(reg), cmap=cmap, vmin=-0.5, vmax=3.5, alpha=0.55,
+             interpolation="nearest")
+    for colour, label in zip(cmap.colors, ("silhouette", "ridge", "elsewhere",
+                                           "spotlight border")):
+        a.plot([], [], "s", color=colour, label=label)
+    a.legend(loc="lower left", fontsize="x-small", framealpha=0.8)
+    a.set_title("regions (reference frame)")
+    # HF / full model error
+    a = ax[3]
+    ratio = results["hf"]["model_error"] / results["full"]["model_error"]
+    ok = np.isfinite(ratio) & (ratio > 0)
+    a.imshow(faint, cmap="gray", vmin=0, vmax=1)
+    if ok.any():
+        lo_r, hi_r = np.percentile(ratio[ok], [2, 98])
+        rn = LogNorm(lo_r, hi_r)
+        im = a.imshow(np.ma.masked_where(~ok, ratio), cmap="viridis", norm=rn, alpha=0.85)
+        cb = fig.colorbar(im, ax=a, shrink=0.8, location="bottom", pad=0.02,
+                          label="HF / full model error")
+        # the range may lie within one decade, where a log axis has no major tick:
+        # five labelled ticks spread over it
+        ticks = np.geomspace(lo_r, hi_r, 5)
+        cb.set_ticks(ticks, labels=[f"{t:.2g}" for t in ticks])
+        cb.ax.minorticks_off()
+    a.set_title("HF vs full")
+
+
+def _fig1_errors(fig, ax, results, faint, names, scale):
+    """Fig. 1's middle row: each model's model error on one log range, and the legend."""
+    from matplotlib.colors import LogNorm
+
+    # one log range for the three models: from the 2nd percentile of the lowest to
+    # the 98th of the highest, so their levels compare at a glance
+    errs = {m: e["model_error"] for m, e in results.items()}
+    pos = [v[np.isfinite(v) & (v > 0)] for v in errs.values()]
+    pos = [v for v in pos if v.size]
+    norm = LogNorm(min(np.percentile(v, 2) for v in pos),
+                   max(np.percentile(v, 98) for v in pos)) if pos else None
+    for col, (model, err) in enumerate(errs.items()):
+        a = ax[col]
+        a.imshow(faint, cmap="gray", vmin=0, vmax=1)
+        good = np.isfinite(err) & (err > 0)
+        if good.any():
+            im = a.imshow(np.ma.masked_where(~good, err), cmap="inferno", norm=norm,
+                          alpha=0.8)
+            fig.colorbar(im, ax=a, shrink=0.8, location="bottom", pad=0.02,
+                         label="model error (one range for b-d)")
+        a.set_title(f"({'bcd'[col]}) model error, {names[model]}")
+    ax[3].axis("off")
+    ax[3].text(0, 0.5, "Model error: the largest of the\nthree smallest eigenvalues of J,"
+                  "\nb-d on one log range.\n\nMotion (bottom): U_Z along the\ndiagonal "
+                  f"at full length, U_X, U_Y\nscaled x{scale:g} against it; orange the\n"
+                  f"truth, the estimate green where\nits drawn direction is within "
+                  f"{RIGHT_DEG:g} deg\nof the truth, red elsewhere; arrows\nlonger "
+                  "than two grid steps clipped.", va="center", fontsize="small")
+
+
+def _fig1_motion(ax, data, results, masks, faint, names, step, scale):
+    """Fig. 1's bottom row: each model's motion drawn against the truth."""
+    H, W = faint.shape
+    yy, xx = np.mgrid[step // 2:H:step, step // 2:W:step]
+    c45 = np.sqrt(0.5)          # U_Z drawn along the diagonal at its full length
+    on_cube = data.truth["face"][yy, xx] > 0
+    tz = data.truth["Uz"][yy, xx]
+    unit = abs(c45 * np.nanmedian(data.truth["Uz"])) * np.sqrt(2) / step
+    for col, (model, e) in enumerate(results.items()):
+        b = ax[col]
+        b.imshow(faint, cmap="gray", vmin=0, vmax=1)
+        ux, uy, uz = (e[q][yy, xx] for q in ("Ux", "Uy", "Uz"))
+        dx = scale * ux + c45 * uz
+        dy = scale * uy + c45 * uz
+        ok = np.isfinite(dx) & np.isfinite(dy) & on_cube
+        # the true vector is drawn one grid step long; longer ones are clipped at two
+        length = np.hypot(dx, dy) / unit
+        clip = np.where(length > 2 * step, 2 * step / np.maximum(length, 1e-12), 1.0)
+        t_ok = on_cube & np.isfinite(tz)
+        b.quiver(xx[t_ok], yy[t_ok], (c45 * tz)[t_ok], (c45 * tz)[t_ok], angles="xy",
+                 scale_units="xy", scale=unit, width=0.006, color="#ff9f1c",
+                 label="truth")
+        shown = angular_errors(e.maps, data.truth, scale)
+        right = shown[yy, xx] < RIGHT_DEG
+        for sel, colour, label in ((ok & right, "#2ca02c", "estimate, right way"),
+                                   (ok & ~right, "#d62728", "estimate, wrong way")):
+            b.quiver(xx[sel], yy[sel], (dx * clip)[sel], (dy * clip)[sel], angles="xy",
+                     scale_units="xy", scale=unit, width=0.004, color=colour,
+                     label=label)
+        fracs = []
+        for fid, fname in FACE_NAMES.items():
+            inner = masks["interior"] & e.interior & (data.truth["face"] == fid)
+            if inner.any():
+                fracs.append(f"{fname} {_shown_right(shown, inner):.0%}")
+        b.set_title(f"({'fgh'[col]}) motion, {names[model].split(' ')[0]}; right way: "
+                    + ", ".join(fracs), fontsize="small")
+        if col == 0:
+            b.legend(loc="lower left", fontsize="x-small", framealpha=0.8)
 
 
 @dataclass

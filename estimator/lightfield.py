@@ -49,8 +49,8 @@ from .driver import estimate
 from .result import Estimate
 from .settings import DEFAULTS, InputError
 
-__all__ = ["shear", "estimate_refocused", "SELECT_DEFAULTS", "SELECTS", "stated_shears",
-           "estimate_shear_range", "check_shears"]
+__all__ = ["shear", "estimate_refocused", "REFOCUS_TUNING", "SELECT_DEFAULTS", "SELECTS",
+           "stated_shears", "estimate_shear_range", "check_shears"]
 
 # (sigma px, window taps) of each shear choice when not given: the occlusion-aware choices
 # work with small windows (their shifted windows and sub-grids handle the edges), the
@@ -271,12 +271,15 @@ def _admissible(disp, err, interior, s: int, m: int):
     return np.where(ok, d, np.nan), np.where(ok, err, np.inf)
 
 
+# the choices' own tuning, keywords of estimate_refocused (its docstring), with defaults
+REFOCUS_TUNING = {"subgrid": None, "aggregate": 3, "coarse_sigma": 2.0}
+
+
 def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
                        sigma: float | None = None, window: int | None = None,
                        filters: str = DEFAULTS["filters"], select: str = "lines",
-                       subgrid: int | None = None, aggregate: int = 3,
-                       coarse_sigma: float = 2.0, fill: bool = True, median: int = 3,
-                       progress=None) -> Estimate:
+                       fill: bool = True, median: int = 3, progress=None,
+                       **tuning) -> Estimate:
     """Disparity of the centre view over a range of integer shears.
 
     Parameters
@@ -323,6 +326,9 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         ``confidence`` stay those of the pixel's own estimate.
     progress : callable, optional
         Called as ``progress(done, total)`` after each shear.
+    **tuning
+        The choices' own tuning, ``subgrid``, ``aggregate``, ``coarse_sigma`` (above;
+        defaults :data:`REFOCUS_TUNING`); any other keyword is refused.
 
     Returns
     -------
@@ -336,6 +342,35 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         of their own (finite, within half a pixel of its shear: ``interior & (filled ==
         0)``) or a filled one.  ``settings``: the shears and the settings used.
     """
+    unknown = sorted(set(tuning) - set(REFOCUS_TUNING))
+    if unknown:
+        raise InputError(f"estimate_refocused: unknown keyword(s) {unknown}; the tuning "
+                         f"keywords are {sorted(REFOCUS_TUNING)}")
+    t = {**REFOCUS_TUNING, **tuning}
+    v, shifts = _checked_views(views, shifts, select)
+    n = v.shape[0]
+    subgrid = min(5, n) if t["subgrid"] is None else t["subgrid"]
+    if select != "coarse" and (subgrid % 2 == 0 or not 3 <= subgrid <= n):
+        raise InputError(f"subgrid must be odd, at least 3 and at most the grid's {n}, "
+                         f"got {subgrid}")
+    sigma = SELECT_DEFAULTS[select][0] if sigma is None else sigma
+    window = SELECT_DEFAULTS[select][1] if window is None else window
+    lo = np.array(sorted(shifts))
+    if select == "coarse":
+        out = _select_coarse(v, lo, sigma, window, filters, t["coarse_sigma"], progress)
+    else:
+        out = _select_occlusion(v, lo, sigma, window, filters, subgrid, t["aggregate"],
+                                lines=select == "lines", progress=progress)
+    maps, valid, filled = _finish(out, sigma, fill, median)
+    settings = {"shears": list(shifts), "select": select, "sigma": sigma, "window": window,
+                "filters": filters, "fill": fill, "median": median,
+                "views": [n, n]}
+    return Estimate(maps, "bcc", valid | filled, settings)
+
+
+def _checked_views(views, shifts, select) -> tuple[np.ndarray, list[int]]:
+    """The views as float64 ``(n, n, H, W)`` and the shears as distinct integers, or an
+    :class:`InputError` naming what is wrong."""
     v = np.asarray(views, dtype=np.float64)
     if v.ndim != 4 or v.shape[0] != v.shape[1] or v.shape[0] % 2 == 0:
         raise InputError(f"views must have shape (n, n, H, W) with n odd, got {v.shape}")
@@ -348,22 +383,14 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         raise InputError(f"shifts must be distinct integers, got {shifts}")
     if select not in SELECT_DEFAULTS:
         raise InputError(f"select must be one of {sorted(SELECT_DEFAULTS)}, got {select!r}")
-    n = v.shape[0]
-    if subgrid is None:
-        subgrid = min(5, n)
-    if select != "coarse" and (subgrid % 2 == 0 or not 3 <= subgrid <= n):
-        raise InputError(f"subgrid must be odd, at least 3 and at most the grid's {n}, "
-                         f"got {subgrid}")
-    sigma = SELECT_DEFAULTS[select][0] if sigma is None else sigma
-    window = SELECT_DEFAULTS[select][1] if window is None else window
-    H, W = v.shape[-2:]
-    lo = np.array(sorted(shifts))
-    if select == "coarse":
-        out = _select_coarse(v, lo, sigma, window, filters, coarse_sigma, progress)
-    else:
-        out = _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate,
-                                lines=select == "lines", progress=progress)
+    return v, shifts
+
+
+def _finish(out: dict, sigma: float, fill: bool, median: int):
+    """The chosen estimates' confidence, the fill and the median: ``(maps, valid,
+    filled)``."""
     disp, err = out["disparity"], out["model_error"]
+    H, W = disp.shape
     valid = np.isfinite(disp)
     with np.errstate(divide="ignore", invalid="ignore"):
         med = np.nanmedian(err[valid]) if valid.any() else np.nan
@@ -381,10 +408,7 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
             "filled": filled.astype(float)}
     if "coarse" in out:
         maps["coarse"] = out["coarse"]
-    settings = {"shears": list(shifts), "select": select, "sigma": sigma, "window": window,
-                "filters": filters, "fill": fill, "median": median,
-                "views": [n, n]}
-    return Estimate(maps, "bcc", valid | filled, settings)
+    return maps, valid, filled
 
 
 def _median(disp, size):

@@ -4,12 +4,12 @@ the other way round) fails here, where a value far out of range would not tell."
 
 from __future__ import annotations
 
-import json
+from functools import partial
 
-import imageio.v3 as iio
 import numpy as np
 import pytest
 
+from builders import noise_folder, sweep_spec
 from gridflow.estimator import EstimatorSettings, InputError, estimate
 from gridflow.generators import make_sinusoid
 
@@ -119,22 +119,8 @@ def test_geometry_at_the_limit(arg, ok, bad):
 
 # --- the camera-grid manifest ----------------------------------------------------------------
 
-PATTERN = "t{t:02d}_y{sy}_x{sx}.png"
-
-
-def _folder(path, T=3, Sy=3, Sx=3, **manifest):
-    path.mkdir(exist_ok=True)
-    rng = np.random.default_rng(0)
-    for t in range(T):
-        for i in range(Sy):
-            for j in range(Sx):
-                iio.imwrite(path / PATTERN.format(t=t, sy=i, sx=j),
-                            (rng.random((12, 10)) * 255).astype(np.uint8))
-    m = {"focal_length": 500.0, "camera_spacing": [0.1, 0.2], "grid": [Sy, Sx], "frames": T,
-         "pattern": PATTERN}
-    m.update(manifest)
-    (path / "grid.json").write_text(json.dumps(m))
-    return path
+# a folder of 8-bit noise (truncated), 12 x 10 px: _folder(path, T=3, Sy=3, Sx=3, **manifest)
+_folder = partial(noise_folder, dtype=np.uint8, rounded=False)
 
 
 def _load(path):
@@ -221,16 +207,8 @@ def _accepted_spec(**sections):
         pytest.fail(f"refused at the limit: {exc}")
 
 
-def _spec(**sections):
-    from gridflow.bench.spec import SweepSpec
-
-    raw = json.loads(json.dumps(SPEC))
-    for sec, vals in sections.items():
-        if isinstance(raw.get(sec), dict):
-            raw[sec].update(vals)
-        else:
-            raw[sec] = vals
-    return SweepSpec.from_dict(raw)
+# SPEC with sections merged in: _spec(**sections) -> SweepSpec
+_spec = partial(sweep_spec, SPEC)
 
 
 @pytest.mark.parametrize("sweep, ok, bad, match", [

@@ -18,12 +18,14 @@ import subprocess
 import sys
 import threading
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
+from builders import PATTERN, SPEC_OK, cli_fails, sinusoid_folder, snapshot, spec_dict, tried
 from gridflow.bench.cli import main
 from gridflow.bench.spec import SpecError, SweepSpec
 from gridflow.bench.sweep import run_sweep
@@ -33,42 +35,8 @@ from gridflow.io import OutputError, atomic_write, check_output, save_volume
 from gridflow.loader import LoaderError, load_folder
 
 ROOT = Path(__file__).resolve().parent.parent
-TRIED: dict[str, int] = {}
-
-
-def tried(kind: str, n: int = 1) -> None:
-    TRIED[kind] = TRIED.get(kind, 0) + n
-
-
-def _snapshot(folder: Path) -> dict:
-    """Every file below ``folder`` with its bytes (FIFOs and folders by kind only)."""
-    out = {}
-    for p in sorted(folder.rglob("*")):
-        rel = str(p.relative_to(folder))
-        if p.is_fifo():
-            out[rel] = "fifo"
-        elif p.is_dir():
-            out[rel] = "dir"
-        else:
-            out[rel] = p.read_bytes()
-    return out
-
-
-def _cli_fails(args, capsys, match: str, code: int = 2) -> str:
-    rc = main([str(a) for a in args])
-    err = capsys.readouterr().err
-    assert rc == code, err
-    assert match in err, err
-    return err
-
-
-@pytest.fixture(scope="module")
-def small_volume(tmp_path_factory):
-    d = tmp_path_factory.mktemp("vol")
-    path = d / "v.npz"
-    sv = make_sinusoid(height=48, width=48, frames=7, grid=(3, 3), a1=0.1)
-    save_volume(path, sv)
-    return path
+# SPEC_OK with sections merged in (None removes one): _with(**sections) -> dict
+_with = partial(spec_dict, SPEC_OK)
 
 
 # --- 1. outputs clobber what they should not -------------------------------------------------
@@ -94,9 +62,9 @@ def test_estimate_output_refused_and_nothing_changes(tmp_path, small_volume, cap
     vol = work / "v.npz"
     vol.write_bytes(small_volume.read_bytes())
     target = make_target(work, vol)
-    before = _snapshot(work)
-    _cli_fails(["estimate", vol, "-o", target, "--sigma", "2", "--window", "9"], capsys, match)
-    assert _snapshot(work) == before
+    before = snapshot(work)
+    cli_fails(["estimate", vol, "-o", target, "--sigma", "2", "--window", "9"], capsys, match)
+    assert snapshot(work) == before
     tried("output path refused (estimate)")
 
 
@@ -120,9 +88,9 @@ def test_every_writer_checks_its_outputs_first(tmp_path, capsys, args, match):
     (tmp_path / "s.csv").write_text("param,value\n")
     _fifo(tmp_path / "pipe.csv")
     (tmp_path / "side.json").mkdir()          # the sidecar of side.csv cannot be written
-    before = _snapshot(tmp_path)
-    _cli_fails([a.format(d=tmp_path, spec=spec) for a in args], capsys, match)
-    assert _snapshot(tmp_path) == before      # nothing written, nothing replaced
+    before = snapshot(tmp_path)
+    cli_fails([a.format(d=tmp_path, spec=spec) for a in args], capsys, match)
+    assert snapshot(tmp_path) == before      # nothing written, nothing replaced
     tried("output path refused (other commands)")
 
 
@@ -157,30 +125,8 @@ def test_device_files_are_never_replaced():
 
 # --- 2. settings silently ignored or wrongly applied -----------------------------------------
 
-PATTERN = "t{t:02d}_y{sy}_x{sx}.png"
-
-
-def _folder(folder: Path, T=5, Sy=3, Sx=3, H=40, W=40, **manifest) -> Path:
-    """A textured camera-grid folder (a 16-bit rendering of a sinusoid volume)."""
-    import imageio.v3 as iio
-
-    folder.mkdir(exist_ok=True)
-    sv = make_sinusoid(height=H, width=W, frames=T, grid=(Sy, Sx), offset=1.0, amplitude=0.5)
-    v = sv.volume / sv.volume.max()
-    for t in range(T):
-        for i in range(Sy):
-            for j in range(Sx):
-                iio.imwrite(folder / PATTERN.format(t=t, sy=i, sx=j),
-                            np.round(v[t, i, j] * 65535).astype(np.uint16))
-    m = {"focal_length": sv.focal_length, "camera_spacing": list(sv.camera_spacing),
-         "grid": [Sy, Sx], "frames": T, "pattern": PATTERN}
-    m.update(manifest)
-    (folder / "grid.json").write_text(json.dumps(m))
-    return folder
-
-
 def test_reference_frame_of_the_manifest_is_used(tmp_path, capsys):
-    folder = _folder(tmp_path / "f", T=7, reference_frame=2)
+    folder = sinusoid_folder(tmp_path / "f", T=7, reference_frame=2)
     assert main(["estimate", str(folder), "-o", str(tmp_path / "e.npz"), "--sigma", "2",
                  "--window", "9", "--model", "bcc"]) == 0
     meta = json.loads(str(np.load(tmp_path / "e.npz")["meta"]))
@@ -221,7 +167,7 @@ def test_reference_frame_of_the_manifest_is_used(tmp_path, capsys):
     ("colour", "grey", "unknown key(s) ['colour']"),
 ])
 def test_every_manifest_key_is_checked(tmp_path, key, value, match):
-    folder = _folder(tmp_path / "f", H=12, W=12, T=3)
+    folder = sinusoid_folder(tmp_path / "f", H=12, W=12, T=3)
     m = json.loads((folder / "grid.json").read_text())
     m[key] = value
     (folder / "grid.json").write_text(json.dumps(m))
@@ -254,7 +200,7 @@ def test_ambiguous_pattern_is_refused(tmp_path):
 
 
 def test_fifo_among_images_is_refused_without_blocking(tmp_path):
-    folder = _folder(tmp_path / "f", H=12, W=12, T=3)
+    folder = sinusoid_folder(tmp_path / "f", H=12, W=12, T=3)
     victim = folder / PATTERN.format(t=1, sy=1, sx=1)
     victim.unlink()
     os.mkfifo(victim)
@@ -269,7 +215,7 @@ def test_fifo_among_images_is_refused_without_blocking(tmp_path):
 
 
 def test_truth_fifo_and_symlink_outside_are_refused(tmp_path):
-    folder = _folder(tmp_path / "f", H=12, W=12, T=3, truth={"Z": "Z.npy"})
+    folder = sinusoid_folder(tmp_path / "f", H=12, W=12, T=3, truth={"Z": "Z.npy"})
     os.mkfifo(folder / "Z.npy")
     assert "not a regular file" in _message(folder, load_folder)
     (folder / "Z.npy").unlink()
@@ -305,33 +251,15 @@ def test_nan_principal_point_is_refused(tmp_path, small_volume, capsys):
     z = dict(np.load(small_volume))
     z["principal_point"] = np.array([np.nan, 1.0])
     np.savez(tmp_path / "pp.npz", **z)
-    _cli_fails(["estimate", tmp_path / "pp.npz", "-o", tmp_path / "e.npz"], capsys,
+    cli_fails(["estimate", tmp_path / "pp.npz", "-o", tmp_path / "e.npz"], capsys,
                "'principal_point' must be 2 finite numbers")
     assert not (tmp_path / "e.npz").exists()
     z = dict(np.load(small_volume))
     z["extra"] = np.zeros(3)
     np.savez(tmp_path / "extra.npz", **z)
-    _cli_fails(["estimate", tmp_path / "extra.npz", "-o", tmp_path / "e.npz"], capsys,
+    cli_fails(["estimate", tmp_path / "extra.npz", "-o", tmp_path / "e.npz"], capsys,
                "unknown array(s) ['extra']")
     tried("malformed npz volume", 3)
-
-
-SPEC_OK = {"sweep": {"name": "t", "models": ["full"], "noise": [0.0], "seeds": [0]},
-           "base": {"height": 40, "width": 40, "frames": 5, "grid": [3, 3]},
-           "estimator": {"sigma": 2.0, "window": 9},
-           "axis": [{"param": "a1", "values": [0.0, 0.1]}]}
-
-
-def _with(**sections):
-    raw = json.loads(json.dumps(SPEC_OK))
-    for k, v in sections.items():
-        if v is None:
-            raw.pop(k)
-        elif isinstance(v, dict) and isinstance(raw.get(k), dict):
-            raw[k].update(v)
-        else:
-            raw[k] = v
-    return raw
 
 
 @pytest.mark.parametrize("raw, match", [
@@ -661,7 +589,7 @@ def test_evaluate_leaves_out_pixels_without_truth(tmp_path, capsys):
 ])
 def test_claims_on_a_bad_csv_is_a_clear_error(tmp_path, capsys, content, match):
     (tmp_path / "s.csv").write_text(content)
-    _cli_fails(["claims", tmp_path / "s.csv"], capsys, match)
+    cli_fails(["claims", tmp_path / "s.csv"], capsys, match)
     tried("bad sweep CSV for claims")
 
 
@@ -735,10 +663,10 @@ def test_a_name_too_long_is_refused_before_any_work(tmp_path, small_volume, caps
     limit = name_max(tmp_path)
     stem = "a" * (limit - len(".npz") - (len("_full") - 1 if models else -1))
     _input_never_read(monkeypatch)
-    before = _snapshot(tmp_path)
+    before = snapshot(tmp_path)
     args = ["estimate", small_volume, "-o", tmp_path / f"{stem}.npz"]
-    _cli_fails(args + (["--model", models] if models else []), capsys, "this file system allows")
-    assert _snapshot(tmp_path) == before
+    cli_fails(args + (["--model", models] if models else []), capsys, "this file system allows")
+    assert snapshot(tmp_path) == before
     tried("output name too long (estimate)")
 
 
@@ -764,7 +692,7 @@ def test_an_unwritable_folder_is_refused_before_any_work(tmp_path, small_volume,
     monkeypatch.setattr(os, "access", lambda p, m, **k: False if Path(p) == target
                         else real(p, m, **k))
     _input_never_read(monkeypatch)
-    _cli_fails(["estimate", small_volume, "-o", target / "e.npz"], capsys,
+    cli_fails(["estimate", small_volume, "-o", target / "e.npz"], capsys,
                f"cannot write into {target}")
     assert list(target.iterdir()) == []
     tried("output folder not writable (estimate)")
@@ -785,9 +713,9 @@ def test_a_read_only_file_system_is_refused_before_any_work(tmp_path, small_volu
         if r.returncode:
             pytest.skip(f"cannot remount read-only here: {r.stderr.decode().strip()}")
         _input_never_read(monkeypatch)
-        _cli_fails(["estimate", small_volume, "-o", mnt / "e.npz"], capsys,
+        cli_fails(["estimate", small_volume, "-o", mnt / "e.npz"], capsys,
                    "a read-only file system")
-        _cli_fails(["generate", "-o", mnt / "v.npz"], capsys, "a read-only file system")
+        cli_fails(["generate", "-o", mnt / "v.npz"], capsys, "a read-only file system")
         tried("read-only file system (estimate, generate)", 2)
     finally:
         subprocess.run(["umount", str(mnt)], capture_output=True)

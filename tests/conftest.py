@@ -21,7 +21,7 @@ def _key(kw: dict) -> tuple:
 
 
 @lru_cache(maxsize=32)
-def _run(key: tuple):
+def _estimates_and_scores(key: tuple):
     kw = dict(key)
     est_kw = {k[4:]: v for k, v in kw.items() if k.startswith("est_")}
     gen_kw = {k: v for k, v in kw.items() if not k.startswith("est_")}
@@ -35,7 +35,7 @@ def _run(key: tuple):
 @pytest.fixture(scope="session")
 def run():
     """``run(**params)`` -> (volume, {model: Estimate}, {model: {quantity: Eq.22 row}})."""
-    return lambda **kw: _run(_key(kw))
+    return lambda **kw: _estimates_and_scores(_key(kw))
 
 
 @pytest.fixture

@@ -39,7 +39,7 @@ def _vol(**kw):
     return make_sinusoid(**kw)
 
 
-def _run(sv, **kw):
+def _estimate(sv, **kw):
     kw = dict(dict(model="bcc", sigma=2.0, window=9), **kw)
     return estimate(sv.volume, sv.focal_length, sv.camera_spacing, **kw)
 
@@ -47,7 +47,7 @@ def _run(sv, **kw):
 def _accepted(sv, **kw):
     """An estimate that must run: a refusal fails the test as a check."""
     try:
-        return _run(sv, **kw)
+        return _estimate(sv, **kw)
     except InputError as exc:
         pytest.fail(f"refused at the limit: {exc}")
 
@@ -58,9 +58,9 @@ def test_image_size_at_the_limit():
     e = _accepted(_vol(height=13, width=13))
     assert e.interior.sum() == 1
     with pytest.raises(InputError, match="too small"):
-        _run(_vol(height=12, width=13))
+        _estimate(_vol(height=12, width=13))
     with pytest.raises(InputError, match="too small"):
-        _run(_vol(height=13, width=12))
+        _estimate(_vol(height=13, width=12))
 
 
 def test_camera_grid_at_the_limit():
@@ -82,7 +82,7 @@ def test_frames_at_the_limit(model, fewest):
     sv = _vol(frames=fewest)
     assert _accepted(sv, model=model).settings["temporal_radius"] == (0 if fewest == 3 else 1)
     with pytest.raises(InputError, match="too few frames"):
-        _run(_vol(frames=fewest - 1), model=model)
+        _estimate(_vol(frames=fewest - 1), model=model)
 
 
 def test_temporal_radius_and_reference_frame_at_the_limit():
@@ -92,14 +92,14 @@ def test_temporal_radius_and_reference_frame_at_the_limit():
     assert _accepted(sv).settings["temporal_radius"] == 2       # the default: the most
     assert _accepted(sv, temporal_radius=2).settings["temporal_radius"] == 2
     with pytest.raises(InputError, match="temporal_radius 3 does not fit"):
-        _run(sv, temporal_radius=3)
+        _estimate(sv, temporal_radius=3)
     lf = _vol(frames=1)
     assert _accepted(lf, ref_frame=0).settings["ref_frame"] == 0
     with pytest.raises(InputError, match="ref_frame 1 outside the 1 frames"):
-        _run(lf, ref_frame=1)
+        _estimate(lf, ref_frame=1)
     assert _accepted(sv, ref_frame=6, temporal_radius=0).settings["ref_frame"] == 6
     with pytest.raises(InputError, match="ref_frame 9 outside the 9 frames"):
-        _run(sv, ref_frame=9)
+        _estimate(sv, ref_frame=9)
 
 
 # (spacings just above 0: 1e-12, where the smallest float would overflow v = P / ds)

@@ -1,5 +1,6 @@
 """Shared fixtures: volumes and estimates are cached per session, since every check on
-the default sinusoid reads the same estimates."""
+the default sinusoid reads the same estimates.  The builders themselves (folders, specs,
+recordings, runs) are in ``builders.py``."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
+import builders
 from gridflow.estimator import estimate_models
 from gridflow.generators import make_sinusoid
 from gridflow.metrics import evaluate
@@ -19,7 +21,7 @@ def _key(kw: dict) -> tuple:
 
 
 @lru_cache(maxsize=32)
-def _run(key: tuple):
+def _estimates_and_scores(key: tuple):
     kw = dict(key)
     est_kw = {k[4:]: v for k, v in kw.items() if k.startswith("est_")}
     gen_kw = {k: v for k, v in kw.items() if not k.startswith("est_")}
@@ -33,7 +35,7 @@ def _run(key: tuple):
 @pytest.fixture(scope="session")
 def run():
     """``run(**params)`` -> (volume, {model: Estimate}, {model: {quantity: Eq.22 row}})."""
-    return lambda **kw: _run(_key(kw))
+    return lambda **kw: _estimates_and_scores(_key(kw))
 
 
 @pytest.fixture
@@ -41,15 +43,16 @@ def rng():
     return np.random.default_rng(12345)
 
 
-def pytest_terminal_summary(terminalreporter):
-    """Report how many inputs the property and hostile-input tests tried, and what became
-    of them."""
-    import sys
+@pytest.fixture(scope="module")
+def small_volume(tmp_path_factory):
+    """``builders.small_volume``: 48 x 48 px, 7 frames, 3 x 3 views, a1 = 0.1 (.npz)."""
+    return builders.small_volume(tmp_path_factory.mktemp("vol") / "v.npz")
 
-    counts = {}
-    for name, m in list(sys.modules.items()):
-        if name.endswith(("test_properties", "test_hostile")) and getattr(m, "TRIED", None):
-            counts.update(m.TRIED)
+
+def pytest_terminal_summary(terminalreporter):
+    """Report how many inputs the property and hostile-input tests tried (their
+    ``builders.tried`` tally), and what became of them."""
+    counts = builders.TRIED
     if counts:
         terminalreporter.write_sep("-", "property and hostile-input tests: inputs tried")
         for key in sorted(counts):

@@ -4,12 +4,12 @@ the other way round) fails here, where a value far out of range would not tell."
 
 from __future__ import annotations
 
-import json
+from functools import partial
 
-import imageio.v3 as iio
 import numpy as np
 import pytest
 
+from builders import noise_folder, sweep_spec
 from gridflow.estimator import EstimatorSettings, InputError, estimate
 from gridflow.generators import make_sinusoid
 
@@ -39,7 +39,7 @@ def _vol(**kw):
     return make_sinusoid(**kw)
 
 
-def _run(sv, **kw):
+def _estimate(sv, **kw):
     kw = dict(dict(model="bcc", sigma=2.0, window=9), **kw)
     return estimate(sv.volume, sv.focal_length, sv.camera_spacing, **kw)
 
@@ -47,7 +47,7 @@ def _run(sv, **kw):
 def _accepted(sv, **kw):
     """An estimate that must run: a refusal fails the test as a check."""
     try:
-        return _run(sv, **kw)
+        return _estimate(sv, **kw)
     except InputError as exc:
         pytest.fail(f"refused at the limit: {exc}")
 
@@ -58,9 +58,9 @@ def test_image_size_at_the_limit():
     e = _accepted(_vol(height=13, width=13))
     assert e.interior.sum() == 1
     with pytest.raises(InputError, match="too small"):
-        _run(_vol(height=12, width=13))
+        _estimate(_vol(height=12, width=13))
     with pytest.raises(InputError, match="too small"):
-        _run(_vol(height=13, width=12))
+        _estimate(_vol(height=13, width=12))
 
 
 def test_camera_grid_at_the_limit():
@@ -82,7 +82,7 @@ def test_frames_at_the_limit(model, fewest):
     sv = _vol(frames=fewest)
     assert _accepted(sv, model=model).settings["temporal_radius"] == (0 if fewest == 3 else 1)
     with pytest.raises(InputError, match="too few frames"):
-        _run(_vol(frames=fewest - 1), model=model)
+        _estimate(_vol(frames=fewest - 1), model=model)
 
 
 def test_temporal_radius_and_reference_frame_at_the_limit():
@@ -92,14 +92,14 @@ def test_temporal_radius_and_reference_frame_at_the_limit():
     assert _accepted(sv).settings["temporal_radius"] == 2       # the default: the most
     assert _accepted(sv, temporal_radius=2).settings["temporal_radius"] == 2
     with pytest.raises(InputError, match="temporal_radius 3 does not fit"):
-        _run(sv, temporal_radius=3)
+        _estimate(sv, temporal_radius=3)
     lf = _vol(frames=1)
     assert _accepted(lf, ref_frame=0).settings["ref_frame"] == 0
     with pytest.raises(InputError, match="ref_frame 1 outside the 1 frames"):
-        _run(lf, ref_frame=1)
+        _estimate(lf, ref_frame=1)
     assert _accepted(sv, ref_frame=6, temporal_radius=0).settings["ref_frame"] == 6
     with pytest.raises(InputError, match="ref_frame 9 outside the 9 frames"):
-        _run(sv, ref_frame=9)
+        _estimate(sv, ref_frame=9)
 
 
 # (spacings just above 0: 1e-12, where the smallest float would overflow v = P / ds)
@@ -119,22 +119,8 @@ def test_geometry_at_the_limit(arg, ok, bad):
 
 # --- the camera-grid manifest ----------------------------------------------------------------
 
-PATTERN = "t{t:02d}_y{sy}_x{sx}.png"
-
-
-def _folder(path, T=3, Sy=3, Sx=3, **manifest):
-    path.mkdir(exist_ok=True)
-    rng = np.random.default_rng(0)
-    for t in range(T):
-        for i in range(Sy):
-            for j in range(Sx):
-                iio.imwrite(path / PATTERN.format(t=t, sy=i, sx=j),
-                            (rng.random((12, 10)) * 255).astype(np.uint8))
-    m = {"focal_length": 500.0, "camera_spacing": [0.1, 0.2], "grid": [Sy, Sx], "frames": T,
-         "pattern": PATTERN}
-    m.update(manifest)
-    (path / "grid.json").write_text(json.dumps(m))
-    return path
+# a folder of 8-bit noise (truncated), 12 x 10 px: _folder(path, T=3, Sy=3, Sx=3, **manifest)
+_folder = partial(noise_folder, dtype=np.uint8, rounded=False)
 
 
 def _load(path):
@@ -221,16 +207,8 @@ def _accepted_spec(**sections):
         pytest.fail(f"refused at the limit: {exc}")
 
 
-def _spec(**sections):
-    from gridflow.bench.spec import SweepSpec
-
-    raw = json.loads(json.dumps(SPEC))
-    for sec, vals in sections.items():
-        if isinstance(raw.get(sec), dict):
-            raw[sec].update(vals)
-        else:
-            raw[sec] = vals
-    return SweepSpec.from_dict(raw)
+# SPEC with sections merged in: _spec(**sections) -> SweepSpec
+_spec = partial(sweep_spec, SPEC)
 
 
 @pytest.mark.parametrize("sweep, ok, bad, match", [

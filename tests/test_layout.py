@@ -173,7 +173,7 @@ def installed(tmp_path_factory):
     return py, site, work
 
 
-def _run(installed, *args, **kw):
+def _run_installed(installed, *args, **kw):
     """Run ``args`` (the environment's python when the first is an option or ``-c``)."""
     py, _, work = installed
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
@@ -198,14 +198,15 @@ def test_site_packages_holds_gridflow_alone(installed):
 
 def test_installed_imports(installed):
     _, site, _ = installed
-    r = _run(installed, "-c",
-             "import gridflow, gridflow.estimator, gridflow.generators, gridflow.scenes, "
-             "gridflow.bench; from gridflow.estimator import estimate; "
-             "from gridflow.generators import make_sinusoid; print(gridflow.__file__)")
+    r = _run_installed(installed, "-c",
+                       "import gridflow, gridflow.estimator, gridflow.generators, "
+                       "gridflow.scenes, gridflow.bench; from gridflow.estimator import "
+                       "estimate; from gridflow.generators import make_sinusoid; "
+                       "print(gridflow.__file__)")
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip().startswith(str(site)), r.stdout
     for name in ("estimator", "generators", "scenes", "bench", "base"):
-        r = _run(installed, "-c", f"import {name}")
+        r = _run_installed(installed, "-c", f"import {name}")
         assert r.returncode != 0 and "ModuleNotFoundError" in r.stderr, (name, r.stderr)
 
 
@@ -214,19 +215,19 @@ def test_installed_cli_runs_outside_the_repository(installed):
     gridflow = str(py.parent / "gridflow")      # the console script the wheel installed
     from gridflow import __version__
 
-    r = _run(installed, gridflow, "--version")
+    r = _run_installed(installed, gridflow, "--version")
     assert r.returncode == 0 and r.stdout.strip() == f"gridflow {__version__}", r
     # a shipped spec found by name, run end to end
-    r = _run(installed, gridflow, "sweep", "smoke", "-o", "s.csv", "--no-progress",
-             "--processes", "1")
+    r = _run_installed(installed, gridflow, "sweep", "smoke", "-o", "s.csv", "--no-progress",
+                       "--processes", "1")
     assert r.returncode == 0, r.stderr
     assert (work / "s.csv").is_file() and len((work / "s.csv").read_text().splitlines()) > 1
-    r = _run(installed, gridflow, "claims", "s.csv")
+    r = _run_installed(installed, gridflow, "claims", "s.csv")
     assert r.returncode == 0, r.stderr
-    r = _run(installed, gridflow, "figures", "--sweep", "s.csv", "--out", "figs")
+    r = _run_installed(installed, gridflow, "figures", "--sweep", "s.csv", "--out", "figs")
     assert r.returncode == 0, r.stderr
     assert (work / "figs" / "fig3_gridflow_setup.png").is_file()
-    r = _run(installed, gridflow, "sweep", "nosuchspec", "-o", "x.csv")
+    r = _run_installed(installed, gridflow, "sweep", "nosuchspec", "-o", "x.csv")
     shipped = ", ".join(sorted(p.stem for p in (ROOT / "bench" / "sweeps").glob("*.toml")))
     assert r.returncode == 2 and f"shipped: {shipped}" in r.stderr, r.stderr
 

@@ -1,36 +1,24 @@
 """Camera-grid folders: reading and every kind of bad folder."""
 
 import json
+from functools import partial
 
 import imageio.v3 as iio
 import numpy as np
 import pytest
 
+from builders import noise_folder, noise_volume
 from gridflow.loader import LoaderError, load_folder
 
-PATTERN = "t{t:02d}_y{sy}_x{sx}.png"
-
-
-def _make(folder, T=3, Sy=3, Sx=3, H=12, W=10, dtype=np.uint16, **manifest):
-    folder.mkdir(exist_ok=True)
-    rng = np.random.default_rng(0)
-    vol = rng.random((T, Sy, Sx, H, W))
-    scale = {np.uint8: 255, np.uint16: 65535}[dtype]
-    for t in range(T):
-        for i in range(Sy):
-            for j in range(Sx):
-                iio.imwrite(folder / PATTERN.format(t=t, sy=i, sx=j),
-                            np.round(vol[t, i, j] * scale).astype(dtype))
-    m = {"focal_length": 500.0, "camera_spacing": [0.1, 0.2], "grid": [Sy, Sx], "frames": T,
-         "pattern": PATTERN, "reference_camera": [(Sy - 1) // 2, (Sx - 1) // 2]}
-    m.update(manifest)
-    (folder / "grid.json").write_text(json.dumps(m))
-    return vol, scale
+# a folder of 16-bit noise (rounded), 12 x 10 px, naming the centre camera the reference:
+# _make(folder, T=3, Sy=3, Sx=3, H=12, W=10, dtype=np.uint16, **manifest); Sy = Sx = 3 here
+_make = partial(noise_folder, reference_camera=[1, 1])
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
 def test_png_folder_roundtrip(tmp_path, dtype):
-    vol, scale = _make(tmp_path / "f", dtype=dtype)
+    _make(tmp_path / "f", dtype=dtype)
+    vol, scale = noise_volume(), np.iinfo(dtype).max
     d = load_folder(tmp_path / "f")
     assert d.volume.shape == (3, 3, 3, 12, 10)
     # quantisation: half a grey level

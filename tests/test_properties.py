@@ -7,7 +7,6 @@ import io
 import json
 import os
 import tempfile
-from collections import Counter
 from contextlib import redirect_stderr, redirect_stdout
 from datetime import timedelta
 from pathlib import Path
@@ -22,7 +21,7 @@ from gridflow.estimator import InputError, estimate
 from gridflow.generators import SinusoidParams, make_sinusoid
 from gridflow.bench.spec import SpecError, SweepSpec
 
-TRIED = Counter()     # reported by conftest.pytest_terminal_summary
+from builders import TRIED, noise_folder     # TRIED: reported by conftest's summary
 
 # A deadline per example is the hang check; it is generous because the machine is shared.
 COMMON = dict(deadline=timedelta(seconds=20), derandomize=True,
@@ -244,15 +243,8 @@ _GOOD = {"focal_length": 500.0, "camera_spacing": [0.1, 0.2], "grid": [3, 3], "f
 
 @pytest.fixture(scope="module")
 def image_folder(tmp_path_factory):
-    import imageio.v3 as iio
-
-    folder = tmp_path_factory.mktemp("grid")
-    rng = np.random.default_rng(0)
-    for t in range(3):
-        for i in range(3):
-            for j in range(3):
-                iio.imwrite(folder / f"t{t:02d}_y{i}_x{j}.png",
-                            (rng.random((12, 10)) * 65535).astype(np.uint16))
+    # 16-bit noise, truncated; each example writes its own grid.json over the builder's
+    folder = noise_folder(tmp_path_factory.mktemp("grid"), rounded=False)
     np.save(folder / "Z.npy", np.ones((12, 10)))
     return folder
 

@@ -35,7 +35,7 @@ def _parts(out: Path):
     return sorted(d.glob("*.csv")) if d.exists() else []
 
 
-def _run(spec, out):
+def _start_sweep(spec, out):
     return subprocess.Popen([sys.executable, "-m", "gridflow.bench.cli", "sweep", str(spec), "-o",
                              str(out), "--processes", "1", "--no-progress"], cwd=ROOT,
                             start_new_session=True, stdout=subprocess.DEVNULL,
@@ -51,7 +51,7 @@ def test_sigkill_at_several_points_then_resume(tmp_path):
     out = tmp_path / "s.csv"
     n_points = 8
     for kill_after in (0, 2, 5):              # parts finished when the kill lands
-        p = _run(spec, out)
+        p = _start_sweep(spec, out)
         t0 = time.monotonic()
         while len(_parts(out)) < kill_after and p.poll() is None:
             assert time.monotonic() - t0 < 300, "sweep made no progress"
@@ -64,7 +64,7 @@ def test_sigkill_at_several_points_then_resume(tmp_path):
             assert len(df) == 6 + 12 and df.param.eq("a1").all()
         assert len(_parts(out)) < n_points
     done_before = len(_parts(out))
-    p = _run(spec, out)
+    p = _start_sweep(spec, out)
     assert p.wait(timeout=600) == 0
     assert done_before >= 5
     # same rows, same order, no duplicates

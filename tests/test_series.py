@@ -17,49 +17,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from builders import RECORDING, record, run_series, same_arrays, store_arrays
 from gridflow.bench.cli import main
 from gridflow.generators.recording import GrowthRecording, RecordingParams
 
 ROOT = Path(__file__).resolve().parents[1]
-SMALL = dict(frames=40, height=64, width=64, grid=(3, 3), growth=2e-3, rhythm=0.8,
-             period=60.0, illumination=0.3)
 # a recording is estimated for its growth maps: the affine motion model
 EST = ["--sigma", "2", "--window", "9", "--motion", "affine", "--no-progress"]
 
 
-def run_series(recording, output, *, every=1, settings=None, **options):
-    """The pipeline into a map series, with the growth model unless settings say
-    otherwise (the command line's ``estimate REC -o MAPS.zarr --motion affine``)."""
-    from gridflow.pipeline import RunOptions, estimate
-
-    settings = {"motion": "affine", **(settings or {})}
-    return estimate(recording, output, RunOptions(settings=settings, every=every, **options))
-
-
-def _record(path: Path, **over) -> Path:
-    args = ["record", "-o", str(path), "--no-progress"]
-    for k, v in {**SMALL, **over}.items():
-        flag = "--" + k.replace("_", "-")
-        args += [flag, *map(str, v)] if isinstance(v, tuple) else [flag, str(v)]
-    assert main(args) == 0
-    return path
-
-
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory) -> Path:
-    return _record(tmp_path_factory.mktemp("rec") / "rec.zarr")
-
-
-def _store_arrays(path: Path) -> dict:
-    import zarr
-
-    g = zarr.open_group(str(path), mode="r")
-    return {name: np.asarray(a[...]) for name, a in g.arrays()}
-
-
-def _same(a: dict, b: dict) -> bool:
-    return a.keys() == b.keys() and all(
-        np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f") for k in a)
+    return record(tmp_path_factory.mktemp("rec") / "rec.zarr")
 
 
 # --- the synthetic recording's truth -----------------------------------------------------------
@@ -68,14 +37,14 @@ def test_recording_truth_is_the_rate_of_the_rendered_scale():
     """The growth truth is the relative area rate of the plane as rendered: the linear
     scale s(t) that frame() applies, differentiated numerically (central difference,
     error O(h^2) ~ 1e-9 here), gives g(t) = 2 s'/s at every frame tried."""
-    gen = GrowthRecording(RecordingParams(**SMALL))
+    gen = GrowthRecording(RecordingParams(**RECORDING))
     h = 1e-3
     for k in (0, 3, 7, 12, 19):
         rate = (np.log(gen.scale(k + h)) - np.log(gen.scale(k - h))) / h     # 2 s'/s
         assert rate == pytest.approx(float(gen.growth_rate(k)), rel=1e-6, abs=1e-12)
         assert np.all(gen.truth(k)["growth"] == pytest.approx(float(gen.growth_rate(k))))
     # the day/night rhythm: the rate spans g0 (1 -+ m)
-    g = gen.growth_rate(np.arange(0, SMALL["period"], 0.01))
+    g = gen.growth_rate(np.arange(0, RECORDING["period"], 0.01))
     assert g.max() == pytest.approx(2e-3 * 1.8, rel=1e-4)
     assert g.min() == pytest.approx(2e-3 * 0.2, rel=1e-3)
 
@@ -85,8 +54,8 @@ def test_recording_frames_move_as_the_truth_says():
     the truth's (Ux, Uy) (in px: U f / Z) matches frame k far better than unwarped."""
     from scipy.ndimage import map_coordinates
 
-    gen = GrowthRecording(RecordingParams(**{**SMALL, "growth": 2e-2, "illumination": 0.0,
-                                             "wavelength_x": 16.0}))
+    gen = GrowthRecording(RecordingParams(**{**RECORDING, "growth": 2e-2,
+                                             "illumination": 0.0, "wavelength_x": 16.0}))
     k = 5
     a, b = gen.frame(k)[1, 1], gen.frame(k + 1)[1, 1]
     tr = gen.truth(k + 0.5)          # the velocity half-way
@@ -170,7 +139,7 @@ def test_an_interrupted_series_resumes_to_the_same_store(recording, tmp_path):
     assert first.done == 3
     second = run_series(recording, parts, every=2, settings=settings)
     assert second.skipped == 3 and second.done == second.steps == 16
-    assert _same(_store_arrays(whole), _store_arrays(parts))
+    assert same_arrays(store_arrays(whole), store_arrays(parts))
 
 
 def test_row_bands_give_the_whole_steps_maps(recording, tmp_path):
@@ -226,7 +195,7 @@ def test_an_interrupted_banded_series_resumes_band_by_band(recording, tmp_path):
     assert bd.sum() == 10 and bd[0].all() and bd[1].sum() == 3
     again = run_series(recording, parts, every=5, settings=settings, band_rows=10)
     assert again.skipped == 1 and again.done == 7
-    assert _same(_store_arrays(whole), _store_arrays(parts))
+    assert same_arrays(store_arrays(whole), store_arrays(parts))
 
 
 def test_a_map_series_of_another_format_is_refused_by_name(recording, tmp_path, capsys):
@@ -302,7 +271,7 @@ def test_kill_9_mid_way_then_rerun_gives_the_same_store(recording, tmp_path):
     assert r.returncode == 0, r.stderr
     if done_before:
         assert f"{done_before} done by an earlier run" in r.stdout
-    assert _same(_store_arrays(whole), _store_arrays(parts))
+    assert same_arrays(store_arrays(whole), store_arrays(parts))
     assert 0 < done_before < 32, ("the kill fell outside the steps; the test proved nothing",
                                   done_before)
 
@@ -322,7 +291,7 @@ def test_a_local_dask_cluster_gives_the_same_store(recording, tmp_path):
         rep = run_series(recording, remote, every=3, settings=settings,
                          connect=cluster.scheduler_address)
     assert rep.done == 11
-    assert _same(_store_arrays(local), _store_arrays(remote))
+    assert same_arrays(store_arrays(local), store_arrays(remote))
 
 
 # --- refusals and bad recordings ------------------------------------------------------------------
@@ -335,7 +304,7 @@ def test_outputs_that_are_not_this_runs_store_are_refused(recording, tmp_path, c
     (other / "notes.txt").write_text("mine")
     ran = tmp_path / "ran.zarr"
     assert main(["estimate", str(recording), "-o", str(ran), "--every", "5", *EST]) == 0
-    before = _store_arrays(ran)
+    before = store_arrays(ran)
     listing = sorted(p.relative_to(recording) for p in recording.rglob("*"))
     for out, extra, match in ((recording, [], "is the input"),
                               (recording / "sub.zarr", [], "is the input"),
@@ -346,7 +315,7 @@ def test_outputs_that_are_not_this_runs_store_are_refused(recording, tmp_path, c
         assert rc == 2 and match in err, (out, err)
     assert sorted(other.iterdir()) == [other / "notes.txt"]
     assert (other / "notes.txt").read_text() == "mine"
-    assert _same(before, _store_arrays(ran))
+    assert same_arrays(before, store_arrays(ran))
     assert sorted(p.relative_to(recording) for p in recording.rglob("*")) == listing
 
 
@@ -400,7 +369,7 @@ def _folder_recording(folder: Path, frames: int = 12) -> Path:
     """The small recording as a camera-grid image folder (16-bit PNGs)."""
     import imageio.v3 as iio
 
-    gen = GrowthRecording(RecordingParams(**{**SMALL, "frames": frames, "offset": 1.0,
+    gen = GrowthRecording(RecordingParams(**{**RECORDING, "frames": frames, "offset": 1.0,
                                              "amplitude": 0.5}))
     folder.mkdir()
     for k in range(frames):
@@ -541,7 +510,7 @@ def test_a_series_resumes_after_the_benchmark_changes(recording, tmp_path):
     _edit(tree / "gridflow" / "estimator" / "driver.py", '"""The public driver',
           '"""The driver')
     assert run(parts, 0) == [2, 4, 4]                     # resumed: 2 done before
-    assert _same(_store_arrays(whole), _store_arrays(parts))
+    assert same_arrays(store_arrays(whole), store_arrays(parts))
     # a change of the estimator's code is another run: refused, the store kept
     _edit(tree / "gridflow" / "estimator" / "driver.py",
           "    return s.window // 2 + get_filter_pair(s.filters).radius",
@@ -549,4 +518,4 @@ def test_a_series_resumes_after_the_benchmark_changes(recording, tmp_path):
     r = subprocess.run([sys.executable, "-c", code, str(recording), str(parts), "0"],
                        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode != 0 and "holds another run's results" in r.stderr, r.stderr
-    assert _same(_store_arrays(whole), _store_arrays(parts))
+    assert same_arrays(store_arrays(whole), store_arrays(parts))

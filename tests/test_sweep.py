@@ -1,24 +1,22 @@
 """Sweep runner: spec validation, reproducibility, interruption, CLI."""
 
+from functools import partial
+
 import pandas as pd
 import pytest
 
 import gridflow.bench.sweep as sweep_mod
+from builders import sweep_spec
 from gridflow.bench.cli import main
 from gridflow.bench.spec import SpecError, SweepSpec, shipped_specs
 from gridflow.bench.sweep import run_point, run_sweep
 
 SMALL = {"height": 80, "width": 80, "frames": 7}
-
-
-def _spec(**over):
-    raw = {"sweep": {"name": "t", "models": ["bcc", "full"], "noise": [0.0, 0.02],
-                     "seeds": [3]},
-           "base": dict(SMALL), "axis": [{"param": "a1", "values": [0.0, 0.3]},
-                                         {"param": "a2x", "values": [-0.001]}]}
-    for k, v in over.items():
-        raw[k] = v
-    return SweepSpec.from_dict(raw)
+SPEC = {"sweep": {"name": "t", "models": ["bcc", "full"], "noise": [0.0, 0.02], "seeds": [3]},
+        "base": SMALL, "axis": [{"param": "a1", "values": [0.0, 0.3]},
+                                {"param": "a2x", "values": [-0.001]}]}
+# SPEC with whole sections replaced: _spec(**over) -> SweepSpec
+_spec = partial(sweep_spec, SPEC, replace=True)
 
 
 @pytest.mark.parametrize("over, match", [

@@ -95,19 +95,19 @@ $(GROWTH_CSV): bench/sweeps/growth.toml $(NUMERICS) | $(STAMP)
 $(ZOOM_CSV): bench/sweeps/paper_setup_zoom.toml $(NUMERICS) | $(STAMP)
 	$(BIN)/gridflow sweep $< -o $@
 
-results/claims_paper_setup_zoom.csv: $(ZOOM_CSV) bench/claims.py bench/markdown.py | $(STAMP)
+results/claims_paper_setup_zoom.csv: $(ZOOM_CSV) bench/claims.py bench/labels.py bench/markdown.py | $(STAMP)
 	$(BIN)/gridflow claims $< --write-csv $@ --write-doc docs/reproduction.md
 
-$(FIGDIR)/fig_growth.png: $(GROWTH_CSV) bench/figures.py | $(STAMP)
+$(FIGDIR)/fig_growth.png: $(GROWTH_CSV) bench/figures.py bench/labels.py | $(STAMP)
 	$(BIN)/gridflow figures --sweep $< --out $(FIGDIR)
 
-results/claims_growth.csv: $(GROWTH_CSV) bench/claims.py bench/markdown.py | $(STAMP)
+results/claims_growth.csv: $(GROWTH_CSV) bench/claims.py bench/labels.py bench/markdown.py | $(STAMP)
 	$(BIN)/gridflow claims $< --write-csv $@ --write-doc docs/reproduction.md
 
-$(FIGDIR)/fig3_gridflow_setup.png $(FIGDIR)/fig4_gridflow_setup.png &: $(SWEEP_CSV) bench/figures.py | $(STAMP)
+$(FIGDIR)/fig3_gridflow_setup.png $(FIGDIR)/fig4_gridflow_setup.png &: $(SWEEP_CSV) bench/figures.py bench/labels.py | $(STAMP)
 	$(BIN)/gridflow figures --sweep $< --out $(FIGDIR)
 
-$(FIGDIR)/fig3_paper_setup.png $(FIGDIR)/fig4_paper_setup.png &: $(SETUP_CSV) bench/figures.py | $(STAMP)
+$(FIGDIR)/fig3_paper_setup.png $(FIGDIR)/fig4_paper_setup.png &: $(SETUP_CSV) bench/figures.py bench/labels.py | $(STAMP)
 	$(BIN)/gridflow figures --sweep $< --out $(FIGDIR)
 
 $(FIGDIR)/fig2.png: bench/figures.py generators/sinusoid.py | $(STAMP)
@@ -156,14 +156,14 @@ povray:
 	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq povray >/dev/null && \
 	  echo "POV-Ray installed"; }
 
-results/claims.csv: $(SWEEP_CSV) bench/claims.py bench/markdown.py | $(STAMP)
+results/claims.csv: $(SWEEP_CSV) bench/claims.py bench/labels.py bench/markdown.py | $(STAMP)
 	$(BIN)/gridflow claims $< --write-csv $@ --write-doc docs/reproduction.md
 
-results/claims_paper_setup.csv: $(SETUP_CSV) bench/claims.py bench/markdown.py | $(STAMP)
+results/claims_paper_setup.csv: $(SETUP_CSV) bench/claims.py bench/labels.py bench/markdown.py | $(STAMP)
 	$(BIN)/gridflow claims $< --write-csv $@ --write-doc docs/reproduction.md
 
 # the paper's quantitative statements, gridflow's number for each under both setups
-results/paper_terms.csv: $(SWEEP_CSV) $(SETUP_CSV) bench/claims.py bench/markdown.py | $(STAMP)
+results/paper_terms.csv: $(SWEEP_CSV) $(SETUP_CSV) bench/claims.py bench/labels.py bench/markdown.py | $(STAMP)
 	$(BIN)/gridflow claims $(SWEEP_CSV) $(SETUP_CSV) --write-terms $@ --write-doc docs/reproduction.md
 
 # Other readings of the paper's unstated parameters (bench/readings.py): four more sweeps

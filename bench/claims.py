@@ -47,6 +47,8 @@ import pandas as pd
 from gridflow.estimator import MODELS
 from gridflow.estimator.models import AFFINE, TRANSLATION
 
+from .labels import is_growth_sweep
+
 __all__ = ["check_claims", "claims_markdown", "render_checks", "write_claims", "CLAIMS",
            "missing_data", "breakdown", "paper_terms", "paper_terms_markdown",
            "claims_report"]
@@ -622,12 +624,6 @@ GROWTH_CLAIMS = [
 GROWTH_NEEDS = {"G1": "growth", "G2": "rotation"}
 
 
-def is_growth_sweep(df: pd.DataFrame) -> bool:
-    """A sweep of the affine motion model (``gridflow sweep growth``): its claims are
-    :data:`GROWTH_CLAIMS`, the paper's observations are about the translation model."""
-    return "motion" in df and (df.motion == AFFINE.name).any()
-
-
 def check_claims(df: pd.DataFrame) -> pd.DataFrame:
     """Evaluate every observation; returns a table ``id, observation, verdict, parts,
     numbers, terms`` (``terms``: the :class:`Part` objects that read a statement of the
@@ -766,7 +762,7 @@ def claims_report(csvs, *, doc=None, csv=None, terms=None) -> list[str]:
     from gridflow.errors import UsageError
     from gridflow.io import atomic_write, check_output
 
-    from .figures import setup_label
+    from .labels import setup_label
     from .markdown import rewrite_block
     from .sweep import read_sweep_csv
 

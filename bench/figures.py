@@ -29,7 +29,7 @@ import pandas as pd  # noqa: E402
 from gridflow.estimator import MODELS  # noqa: E402
 from gridflow.estimator.models import AFFINE, TRANSLATION  # noqa: E402
 
-from .claims import is_growth_sweep  # noqa: E402
+from .labels import is_growth_sweep, setup_label  # noqa: E402
 
 __all__ = ["fig2", "fig3", "fig4", "fig_peers_depth", "draw_figures", "figures_from_csv",
            "sinusoid_fig2", "save",
@@ -145,46 +145,6 @@ def _min_span(ax, factor: float) -> None:
     if hi / lo < factor:
         mid = np.sqrt(lo * hi)
         ax.set_ylim(mid / np.sqrt(factor), mid * np.sqrt(factor))
-
-
-def setup_label(df: pd.DataFrame) -> str:
-    """The setup a sweep table was run under (``bench.setups``), read from the generator
-    and estimator settings its rows record: the named setup whose every entry they carry,
-    or the one whose entries they mostly carry with the entries that differ named
-    (``"paper setup, zoom_correction True"``); ``"gridflow setup"`` otherwise."""
-    import json
-
-    from .setups import SETUPS
-
-    from gridflow.estimator import EstimatorSettings
-    from gridflow.generators import SinusoidParams
-
-    # the rows record the settings that differ from the defaults: the rest are these
-    gen = {k: (list(v) if isinstance(v, tuple) else v)
-           for k, v in SinusoidParams().as_dict().items()}
-    est = dict(EstimatorSettings().as_dict())
-    if "generator" in df and len(df):
-        gen.update(json.loads(df.generator.iloc[0]))
-    if "estimator" in df and len(df):
-        est.update(json.loads(df.estimator.iloc[0]))
-
-    def same(a, b):
-        return (list(a) if isinstance(a, tuple) else a) == b
-
-    best = None
-    for name, st in SETUPS.items():
-        entries = [(k, v, gen) for k, v in st.base.items()] + \
-            [(k, v, est) for k, v in st.estimator.items()]
-        if not entries:
-            continue
-        differ = [(k, got.get(k)) for k, v, got in entries if not same(v, got.get(k))]
-        if not differ:
-            return f"{name} setup"
-        if len(differ) < len(entries) / 2 and (best is None or len(differ) < len(best[1])):
-            best = (name, differ)
-    if best:
-        return f"{best[0]} setup, " + ", ".join(f"{k} {v}" for k, v in best[1])
-    return "gridflow setup"
 
 
 def _file_label(label: str) -> str:

@@ -330,7 +330,8 @@ def test_parameter_options_read_their_help_from_the_docstrings():
 
 def test_cli_defaults_come_from_the_library():
     """The scenes' and experiments' defaults are the library's, not copies."""
-    from gridflow.bench.cube_experiment import SIGMA, WINDOW
+    from gridflow.bench.cube_experiment import CUBE_SIGMA as SIGMA
+    from gridflow.bench.cube_experiment import CUBE_WINDOW as WINDOW
     from gridflow.bench.cli import build_parser
     from gridflow.scenes import RENDER_CACHE, CubeScene, LeafRecording, LeafScene
 

@@ -249,6 +249,11 @@ def save_volume(path, data: GridVolume, *, compress: bool = False) -> None:
 
 def _open_npz(path):
     path = check_input_file(path)
+    # numpy reads a file that is no zip archive as a pickle and answers with advice to
+    # allow pickles: say what the file is not instead
+    if not zipfile.is_zipfile(path):
+        raise FileFormatError(f"{path}: not a zip archive, so not an .npz file (write one "
+                              "with numpy.savez or gridflow generate)")
     try:
         return np.load(path, allow_pickle=False)
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:

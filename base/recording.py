@@ -330,42 +330,16 @@ class MapStore:
 
     @classmethod
     def create(cls, path, *, key: str, frames: list[int], shape: tuple, quantities: list,
-               frame_interval: float | None, attrs: dict, inputs=(),
+               frame_interval: float | None, attrs: dict,
                band_rows: int | None = None) -> "MapStore":
-        """Make the store, or reopen it when it holds a run with the same ``key``.
+        """Make a new store (``path`` must not exist: whether an existing one is taken up
+        is the caller's rule, :meth:`reopen_or_refuse`).
 
         ``band_rows``: rows per band (default the image's height: one band); part of the
         layout, so it belongs in ``key``.
-
-        Raises
-        ------
-        OutputError
-            ``path`` is an input (or lies inside one), is something other than a gridflow
-            map store, or holds another run's results (another key).
         """
-        from .io import OutputError
-
         zarr = _zarr()
         path = Path(path)
-        for inp in inputs:
-            inp = Path(inp).resolve()
-            if path.resolve() == inp or path.resolve().is_relative_to(inp):
-                raise OutputError(f"{path}: is the input {inp} or lies inside it; no output "
-                                  "replaces an input")
-        if path.exists() or path.is_symlink():
-            g = _gridflow_attrs(path) if path.is_dir() and not path.is_symlink() else None
-            if g is None or g.get("kind") != MAPS_KIND:
-                what = ("a gridflow " + str(g.get("kind")) if g and g.get("kind") else
-                        "a Zarr store that is not gridflow's" if g is not None else
-                        "not a gridflow map store")
-                raise OutputError(f"{path}: exists and is {what}; refusing to write a map "
-                                  "series into it")
-            if g.get("key") != key:
-                raise OutputError(
-                    f"{path}: holds another run's results (input, settings, steps or code "
-                    f"differ: key {g.get('key')} here, {key} now); remove it or choose "
-                    "another name")
-            return cls(path, zarr.open_group(str(path), mode="r+"))
         H, W = shape
         n = len(frames)
         band = H if band_rows is None else max(1, min(int(band_rows), H))
@@ -373,7 +347,7 @@ class MapStore:
         path.parent.mkdir(parents=True, exist_ok=True)
         group = zarr.open_group(str(path), mode="w-")
         # the identity last: a store whose creation was cut short has no key and is
-        # refused above as "not a gridflow map store" rather than taken up
+        # refused by reopen_or_refuse as "not a gridflow map store" rather than taken up
         t = group.create_array("time", shape=(n,), chunks=(n,), dtype="int64",
                                dimension_names=("time",))
         t[:] = np.asarray(frames, dtype=np.int64)
@@ -405,6 +379,41 @@ class MapStore:
                                                   "band_rows": band,
                                                   **attrs.get("gridflow", {})}})
         return cls(path, group)
+
+    @classmethod
+    def reopen_or_refuse(cls, path, key: str, inputs=()) -> "MapStore | None":
+        """The store at ``path`` when it holds the run ``key``; None when there is none
+        yet.
+
+        Raises
+        ------
+        OutputError
+            ``path`` is an input (or lies inside one), is something other than a gridflow
+            map store, or holds another run's results (another key).
+        """
+        from .io import OutputError
+
+        path = Path(path)
+        for inp in inputs:
+            inp = Path(inp).resolve()
+            if path.resolve() == inp or path.resolve().is_relative_to(inp):
+                raise OutputError(f"{path}: is the input {inp} or lies inside it; no output "
+                                  "replaces an input")
+        if not (path.exists() or path.is_symlink()):
+            return None
+        g = _gridflow_attrs(path) if path.is_dir() and not path.is_symlink() else None
+        if g is None or g.get("kind") != MAPS_KIND:
+            what = ("a gridflow " + str(g.get("kind")) if g and g.get("kind") else
+                    "a Zarr store that is not gridflow's" if g is not None else
+                    "not a gridflow map store")
+            raise OutputError(f"{path}: exists and is {what}; refusing to write a map "
+                              "series into it")
+        if g.get("key") != key:
+            raise OutputError(
+                f"{path}: holds another run's results (input, settings, steps or code "
+                f"differ: key {g.get('key')} here, {key} now); remove it or choose "
+                "another name")
+        return cls.open(path, mode="r+")
 
     @classmethod
     def reopen(cls, path, key: str) -> "MapStore":

@@ -178,6 +178,9 @@ class Source:
         """Ground truth at the reference camera and ``frame``: name to ``(H, W)`` float64,
         for ``names`` (default all of :attr:`truth_names`); empty where the source has
         none for that frame."""
+        if not (isinstance(frame, (int, np.integer)) and 0 <= frame < self.frames):
+            raise SourceError(f"{self.path}: truth of frame {frame!r} requested of "
+                              f"0..{self.frames - 1}")
         if not self.truth_names or (self.truth_frame is not None
                                     and frame != self.truth_frame):
             return {}

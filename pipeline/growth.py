@@ -46,6 +46,8 @@ def growth_table(maps, truth=None, *, quantity: str = "growth"):
     g = store.group
     frames, done = store.frames(), store.done()
     interior = np.asarray(g["interior"][:], dtype=bool)
+    if rec is not None:
+        _check_truth(maps, store, truth, rec, interior.shape, frames)
     fi = store.attrs["gridflow"].get("frame_interval")
     rows = []
     for i in np.flatnonzero(done):
@@ -71,6 +73,22 @@ def growth_table(maps, truth=None, *, quantity: str = "growth"):
     if not rows:
         raise UsageError(f"{maps}: no step is done yet")
     return pd.DataFrame(rows)
+
+
+def _check_truth(maps, store, truth, rec, shape, frames) -> None:
+    """Refuse a truth that cannot be the maps' input: another image size, too few frames,
+    or another recording than the one the store records (its path)."""
+    if tuple(rec.shape[3:]) != tuple(shape):
+        raise UsageError(f"--truth {truth}: images of {rec.shape[4]}x{rec.shape[3]} px, the "
+                         f"maps of {maps} are {shape[1]}x{shape[0]}")
+    if rec.truth_frame is not None or int(np.max(frames)) >= rec.frames:
+        held = "one frame" if rec.truth_frame is not None else f"{rec.frames} frames"
+        raise UsageError(f"--truth {truth}: holds truth of {held}; the maps' steps reach "
+                         f"frame {int(np.max(frames))} (a recording with truth per frame)")
+    made_from = store.attrs["gridflow"].get("input")
+    if made_from and Path(made_from).resolve() != Path(truth).resolve():
+        raise UsageError(f"--truth {truth}: {maps} was estimated from {made_from}; score it "
+                         "against that recording's truth")
 
 
 def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -> list[Path]:

@@ -434,7 +434,7 @@ def estimate_step(plan: Plan, i: int, b: int, progress=None) -> tuple[dict, int]
     halo = plan.halo
     if len(plan.bands) > 1 and (r1 <= halo or r0 >= H - halo):
         # a band within the image's border: no pixel there has a whole window
-        names = plan.strategy.quantities(src.shape[1:3])
+        names = plan.strategy.quantities(src.shape)
         nan = {m: Estimate({q: np.full((r1 - r0, W), np.nan) for q in qs}, m,
                            np.zeros((r1 - r0, W), dtype=bool)) for m, qs in names.items()}
         return nan, stamp
@@ -563,7 +563,32 @@ def estimate(input, output, options: RunOptions | None = None) -> RunReport:
     source = open_source(input, views=views)
     strategy, notes = choose_strategy(source, o)
     sink = sink_for(output, strategy.models, inputs=[input])
+    if sink.max_steps == 1 and (o.connect or o.workers is not None):
+        given = [f for f, v in (("--connect", o.connect), ("--workers", o.workers))
+                 if v is not None]
+        raise UsageError(f"{', '.join(given)}: for a series of steps (-o MAPS.zarr); -o "
+                         f"{output} is one step, estimated in this process")
     plan = plan_run(source, strategy, o, sink)
+    _check_fits(plan)
+    # a cluster that does not answer is reported before the store is made
+    client = None
+    if o.connect and sink.max_steps != 1:
+        from .executors import make_client
+
+        client = make_client(scheduler=o.connect, option="--connect")
+    try:
+        report, changed = _prepare_and_run(plan, sink, o, views, notes, client, output)
+    finally:
+        if client is not None:
+            client.close()
+    report.lines += sink.close()
+    report.lines += _summary(plan, sink, o, report, changed, output)
+    return report
+
+
+def _prepare_and_run(plan: Plan, sink, o: RunOptions, views, notes, client, output):
+    """Make or reopen the sink's outputs, then run the tasks not done yet: ``(report,
+    the steps redone because their frames changed)``."""
     sink.prepare(plan)
     todo, changed, kept = sink.todo(plan)
     if o.limit is not None:
@@ -580,11 +605,9 @@ def estimate(input, output, options: RunOptions | None = None) -> RunReport:
         _run_here(plan, sink, todo, o)
         report.now = report.done = len(plan.frames)
     else:
-        _run_tasks(plan, sink, todo, o, views, report)
+        _run_tasks(plan, sink, todo, o, views, report, client)
     report.seconds = time.perf_counter() - t0
-    report.lines += sink.close()
-    report.lines += _summary(plan, sink, o, report, changed, output)
-    return report
+    return report, changed
 
 
 def _run_here(plan: Plan, sink, todo, o: RunOptions) -> None:
@@ -615,18 +638,31 @@ def _run_here(plan: Plan, sink, todo, o: RunOptions) -> None:
             bar.close()
 
 
-def _run_tasks(plan: Plan, sink, todo, o: RunOptions, views, report: RunReport) -> None:
-    """The (step, band) tasks of a map series, on Dask (local threads or a cluster)."""
+def _check_fits(plan: Plan) -> None:
+    """Refuse, before any output is made, an image too small for the window and filters
+    (the estimator's own rule, :func:`gridflow.estimator.window_halo`)."""
+    from gridflow.estimator import InputError
+
+    halo = plan.strategy.halo
+    H, W = plan.source.shape[3:]
+    if halo is not None and (H <= 2 * halo or W <= 2 * halo):
+        s = plan.strategy.estimator_settings
+        raise InputError(f"{plan.source.path}: image {H}x{W} too small for a {s.window}-tap "
+                         f"window and {s.filters} filters: need more than {2 * halo} pixels "
+                         "per side (--sigma, --window)")
+
+
+def _run_tasks(plan: Plan, sink, todo, o: RunOptions, views, report: RunReport,
+               client=None) -> None:
+    """The (step, band) tasks of a map series, on Dask (local threads or ``client``'s
+    cluster)."""
     import dask
 
     T, Sy, Sx, H, W = plan.source.shape
     nb = len(plan.bands)
     job = {"source": str(Path(plan.source.path).resolve()), "views": views,
            "sink": sink.spec(), "plan": replace(plan, source=None), "threads": 1}
-    if o.connect:
-        from .executors import make_client
-
-        client = make_client(scheduler=o.connect, option="--connect")
+    if client is not None:
         where = f"the dask cluster at {o.connect}"
         n = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
     else:
@@ -648,7 +684,7 @@ def _run_tasks(plan: Plan, sink, todo, o: RunOptions, views, report: RunReport) 
                    unit="step" if nb == 1 else "band", file=sys.stderr, dynamic_ncols=True)
     finished = 0
     try:
-        if o.connect:
+        if client is not None:
             from dask.distributed import as_completed
 
             futs = [client.submit(run_step, job, i, b, pure=False) for i, b in todo]
@@ -701,9 +737,11 @@ def _summary(plan: Plan, sink, o: RunOptions, report: RunReport, changed, output
     if sink.max_steps == 1:
         backend = next(iter(sink.ests.values())).settings["backend"]
         method = s.settings.get("method", "fast")
+        lo, hi = plan.windows[0]
+        frames = f"{T} frames" if (lo, hi) == (0, T) else f"frames {lo}..{hi - 1} of {T}"
         return [f"estimated {', '.join(s.models)} (motion {s.motion}) in "
                 f"{report.seconds:.2f} s (method {method}: the {backend} backend; {Sy}x{Sx} "
-                f"views, {T} frames)"]
+                f"views, {frames})"]
     lines = []
     if changed:
         lines.append(f"{len(changed)} step(s) estimated again: frames they read changed "
@@ -714,6 +752,6 @@ def _summary(plan: Plan, sink, o: RunOptions, report: RunReport, changed, output
     lines.append(f"wrote {names}: {done_now} of {len(plan.frames)} steps done "
                  f"({report.now:g} now in {report.seconds:.1f} s, {rate:.3f} steps/s; "
                  f"{report.skipped} done by an earlier run); model {', '.join(s.models)}, "
-                 f"motion {getattr(s, 'motion', 'translation')}; open with "
-                 f"xarray.open_zarr('{next(iter(sink.outputs.values()))}')")
+                 f"motion {getattr(s, 'motion', 'translation')}; open with xarray.open_zarr("
+                 f"'{next(iter(sink.outputs.values()))}', consolidated=False)")
     return lines

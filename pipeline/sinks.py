@@ -161,7 +161,7 @@ class MapSeriesSink:
         source = plan.source
         frames = list(plan.frames)
         band_rows = plan.bands[0][1] - plan.bands[0][0]
-        quantities = plan.strategy.quantities(source.shape[1:3])
+        quantities = plan.strategy.quantities(source.shape)
         for m, path in self.outputs.items():
             blob = json.dumps({"input": source.identity(), "strategy": _describe(plan.strategy),
                                "model": m, "frames": frames, "code": code_key(),
@@ -177,10 +177,13 @@ class MapSeriesSink:
                                   "camera_spacing": list(g.camera_spacing),
                                   "frame_interval": g.frame_interval,
                                   "units": _units(quantities[m], g)}}
-            self.stores[m] = MapStore.create(path, key=key, frames=frames,
-                                             shape=source.shape[3:], quantities=quantities[m],
-                                             frame_interval=g.frame_interval, attrs=attrs,
-                                             inputs=self.inputs, band_rows=band_rows)
+            store = MapStore.reopen_or_refuse(path, key, inputs=self.inputs)
+            if store is None:
+                store = MapStore.create(path, key=key, frames=frames, shape=source.shape[3:],
+                                        quantities=quantities[m],
+                                        frame_interval=g.frame_interval, attrs=attrs,
+                                        band_rows=band_rows)
+            self.stores[m] = store
             self.keys[m] = key
 
     def todo(self, plan) -> tuple[list, list, int]:

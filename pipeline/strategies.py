@@ -66,13 +66,15 @@ class SinglePass:
     def motion(self) -> str:
         return self.estimator_settings.motion
 
-    def quantities(self, grid) -> dict[str, list[str]]:
-        """The maps each model writes on a ``(Sy, Sx)`` grid, ``model_error`` last."""
+    def quantities(self, shape) -> dict[str, list[str]]:
+        """The maps each model writes for a source of ``shape`` ``(T, Sy, Sx, H, W)`` (a
+        1-D grid drops some, a light field of one frame has no motion), ``model_error``
+        last."""
         from gridflow.estimator.models import get_model
 
-        dims = 1 if grid[0] == 1 else 2
-        return {m: list(get_model(m, dims, motion=self.motion).outputs) + ["model_error"]
-                for m in self.models}
+        dims = 1 if shape[1] == 1 else 2
+        return {m: list(get_model(m, dims, shape[0] == 1, self.motion).outputs)
+                + ["model_error"] for m in self.models}
 
     def run(self, window: np.ndarray, geometry: CameraGeometry, ref: int,
             progress=None) -> dict[str, Estimate]:
@@ -110,7 +112,7 @@ class Refocus:
     reach = 0
     halo = None           # the choice, the fill and the median reach across the image
 
-    def quantities(self, grid) -> dict[str, list[str]]:
+    def quantities(self, shape) -> dict[str, list[str]]:
         return {"bcc": ["disparity", "Z", "model_error", "confidence", "shear", "filled"]}
 
     def run(self, window: np.ndarray, geometry: CameraGeometry, ref: int,

@@ -519,3 +519,78 @@ def test_a_series_resumes_after_the_benchmark_changes(recording, tmp_path):
                        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode != 0 and "holds another run's results" in r.stderr, r.stderr
     assert same_arrays(store_arrays(whole), store_arrays(parts))
+
+
+# --- the new user's review of the one pipeline ---------------------------------------------
+
+def test_a_light_field_of_one_frame_goes_to_a_map_series(tmp_path):
+    """A one-frame volume estimated with the single pass (--shears none) into a .zarr:
+    the store holds the maps a static light field has (no motion), equal to the .npz's
+    (the review: a KeyError on 'Ux' and a half-written store)."""
+    from gridflow.io import load_estimate
+    from gridflow.recording import MapStore
+
+    vol = tmp_path / "one.npz"
+    assert main(["generate", "--frames", "1", "--width", "48", "--height", "48", "-o",
+                 str(vol)]) == 0
+    args = ["--shears", "none", "--sigma", "2", "--window", "9", "--no-progress"]
+    assert main(["estimate", str(vol), "-o", str(tmp_path / "one.zarr"), *args]) == 0
+    assert main(["estimate", str(vol), "-o", str(tmp_path / "one_e.npz"), *args]) == 0
+    store = MapStore.open(tmp_path / "one.zarr")
+    maps, _, _ = load_estimate(tmp_path / "one_e.npz")
+    assert store.quantities == list(maps) and "Ux" not in store.quantities
+    for q in store.quantities:
+        a, b = maps[q], np.asarray(store.group[q][0], dtype=np.float64)
+        assert np.nanmax(np.abs(a - b)) <= 1e-6 * np.nanmax(np.abs(a)), q
+
+
+def test_what_cannot_run_is_refused_before_an_output_is_made(recording, tmp_path, capsys):
+    """Options of a series with an .npz, an image too small for the window and a cluster
+    that does not answer are refused before anything is written (the review: --connect
+    and --workers ignored with an .npz; c2.zarr left behind by a bad address; a store
+    made before 'too small for a 65-tap window')."""
+    vol = tmp_path / "v.npz"
+    assert main(["generate", "--height", "32", "--width", "32", "-o", str(vol)]) == 0
+    cases = (
+        (["estimate", str(vol), "-o", str(tmp_path / "e.npz"), "--workers", "2"],
+         "--workers: for a series of steps"),
+        (["estimate", str(vol), "-o", str(tmp_path / "e.npz"), "--connect", "tcp://h:1"],
+         "--connect: for a series of steps"),
+        (["estimate", str(recording), "-o", str(tmp_path / "m.zarr"), "--no-progress"],
+         "too small for a 65-tap window"),
+        (["estimate", str(recording), "-o", str(tmp_path / "m.zarr"), *EST, "--connect",
+          "nonsense"], "--connect 'nonsense': expected an address"))
+    for args, match in cases:
+        assert main(args) == 2
+        assert match in capsys.readouterr().err, args
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.npz"]
+
+
+def test_growth_against_a_truth_that_is_not_the_input_is_refused(recording, tmp_path, capsys):
+    """gridflow growth --truth with another recording (of the same size: it was scored
+    without a word) or another image size (a traceback) is refused naming both."""
+    maps = tmp_path / "maps.zarr"
+    assert main(["estimate", str(recording), "-o", str(maps), "--every", "10", *EST]) == 0
+    other = record(tmp_path / "other.zarr", growth=1e-2)
+    small = record(tmp_path / "small.zarr", height=48, width=48, frames=12)
+    for truth, match in ((other, f"was estimated from {recording.resolve()}"),
+                         (small, "images of 48x48 px")):
+        assert main(["growth", str(maps), "--truth", str(truth), "--fig-dir",
+                     str(tmp_path / "g")]) == 2
+        assert match in capsys.readouterr().err
+    assert main(["growth", str(maps), "--truth", str(recording), "--fig-dir",
+                 str(tmp_path / "g")]) == 0
+
+
+def test_a_sources_truth_and_a_false_npz_are_named(recording, tmp_path, capsys):
+    from gridflow.sources import SourceError, open_source
+
+    src = open_source(recording)
+    assert set(src.truth(3)) == set(src.truth_names)
+    for bad in (-1, src.frames, 2.0):
+        with pytest.raises(SourceError, match="truth of frame"):
+            src.truth(bad)
+    fake = tmp_path / "t.npz"
+    fake.write_text("hello")
+    assert main(["estimate", str(fake), "-o", str(tmp_path / "e.npz")]) == 2
+    assert "t.npz: not a zip archive, so not an .npz file" in capsys.readouterr().err

@@ -119,8 +119,9 @@ def _add_growth(sub) -> None:
                    help="frames whose growth maps to draw (default six spread over the run)")
     p.add_argument("--fig-dir", default="growth", help="where growth_maps.png and "
                    "growth_series.png go (default ./growth)")
-    p.add_argument("--csv", help="also write the per-step table (CSV: frame, time_s, median, "
-                                 "mean, p10, p90, ...; growth per frame)")
+    p.add_argument("--csv", help="also write the per-step table (CSV: step, frame, time_s "
+                                 "(s), mean, median, p10, p90 (growth per frame over the "
+                                 "interior), n_pixels; with --truth also truth, q_rel)")
     p.set_defaults(func=cmd_growth)
 
 

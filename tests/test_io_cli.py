@@ -52,7 +52,7 @@ def test_bad_volume_files(tmp_path, arrays, match):
 
 def test_unreadable_and_missing_files(tmp_path):
     (tmp_path / "junk.npz").write_bytes(b"this is not a zip file")
-    with pytest.raises(ValueError, match="not a readable .npz"):
+    with pytest.raises(ValueError, match="not a zip archive, so not an .npz file"):
         load_volume(tmp_path / "junk.npz")
     with pytest.raises(FileNotFoundError, match="no such file"):
         load_volume(tmp_path / "absent.npz")

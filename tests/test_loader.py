@@ -136,7 +136,8 @@ def test_a_non_finite_pixel_is_named_by_file(tmp_path, value):
 
 
 def test_a_non_finite_volume_names_the_file(tmp_path, capsys):
-    """A volume file with NaN values: the estimator's error names the file."""
+    """A volume file with NaN values: the estimator's error names the file (a window
+    that fits the 32-px image: a default window is refused first, for its size)."""
     from gridflow.bench.cli import main
     from gridflow.generators import make_sinusoid
     from gridflow.io import save_volume
@@ -144,7 +145,8 @@ def test_a_non_finite_volume_names_the_file(tmp_path, capsys):
     sv = make_sinusoid(height=32, width=32, frames=5, grid=(3, 3))
     sv.volume[2, 1, 1, 3, 3] = np.nan
     save_volume(tmp_path / "v.npz", sv)
-    assert main(["estimate", str(tmp_path / "v.npz"), "-o", str(tmp_path / "e.npz")]) == 2
+    assert main(["estimate", str(tmp_path / "v.npz"), "-o", str(tmp_path / "e.npz"),
+                 "--sigma", "2", "--window", "9"]) == 2
     err = capsys.readouterr().err
     assert f"{tmp_path / 'v.npz'}: volume has 1 non-finite values" in err, err
     assert not (tmp_path / "e.npz").exists()

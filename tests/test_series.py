@@ -482,11 +482,12 @@ def _edit(path: Path, old: str, new: str) -> None:
 
 @pytest.mark.slow
 def test_a_series_resumes_after_the_benchmark_changes(recording, tmp_path):
-    """A map series half-written, then a docstring of a benchmark-only module (the sweep
-    runner, whose code keyed map series before) and one of the estimator's changed: the
-    same command resumes the store and ends with the uninterrupted run's maps.  A change
-    of a statement in the estimator makes the store another run's (refused, kept).  Run
-    in a linked copy of the package, the repository untouched."""
+    """A map series half-written, then benchmark code changed (a docstring of the metrics
+    and of the sweep runner, whose code keyed map series before, and a statement of the
+    claims) and a docstring of the estimator: the same command resumes the store and
+    ends with the uninterrupted run's maps.  A change of a statement in the estimator
+    makes the store another run's (refused, kept).  Run in a linked copy of the package,
+    the repository untouched."""
     tree = _linked_package(tmp_path / "tree")
     whole, parts = tmp_path / "whole.zarr", tmp_path / "parts.zarr"
     env = {**__import__("os").environ, "PYTHONPATH": str(tree)}
@@ -506,7 +507,9 @@ def test_a_series_resumes_after_the_benchmark_changes(recording, tmp_path):
     assert probe.stdout.startswith(str(tree)), probe      # the linked copy is what runs
     assert run(whole, 0) == [0, 4, 4]
     assert run(parts, 2) == [0, 2, 4]
+    _edit(tree / "gridflow" / "metrics.py", '"""Error measures:', '"""Errors:')
     _edit(tree / "gridflow" / "bench" / "sweep.py", '"""Running a sweep:', '"""A sweep:')
+    _edit(tree / "gridflow" / "bench" / "claims.py", "\nBREAK = ", "\nBREAK = 1.0 * ")
     _edit(tree / "gridflow" / "estimator" / "driver.py", '"""The public driver',
           '"""The driver')
     assert run(parts, 0) == [2, 4, 4]                     # resumed: 2 done before

@@ -429,6 +429,9 @@ class MapStore:
         """Open an existing map store for reading."""
         zarr = _zarr()
         path = Path(path)
+        if not path.exists():
+            raise RecordingError(f"{path}: no such folder (a map series is written by "
+                                 "gridflow estimate INPUT -o MAPS.zarr)")
         g = _gridflow_attrs(path) if path.is_dir() else None
         if g is None or g.get("kind") != MAPS_KIND:
             raise RecordingError(f"{path}: not a gridflow map series (expected a Zarr store "

@@ -597,3 +597,9 @@ def test_a_sources_truth_and_a_false_npz_are_named(recording, tmp_path, capsys):
     fake.write_text("hello")
     assert main(["estimate", str(fake), "-o", str(tmp_path / "e.npz")]) == 2
     assert "t.npz: not a zip archive, so not an .npz file" in capsys.readouterr().err
+
+
+def test_growth_of_a_missing_store_says_so(tmp_path, capsys):
+    assert main(["growth", str(tmp_path / "nothing.zarr"), "--fig-dir",
+                 str(tmp_path / "g")]) == 2
+    assert "nothing.zarr: no such folder" in capsys.readouterr().err

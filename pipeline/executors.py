@@ -231,7 +231,7 @@ def make_client(scheduler: str | None = None, workers: int | None = None, *,
     def connect():
         if scheduler:
             return Client(scheduler, timeout=f"{timeout}s")
-        # the dashboard on a free port: None still asks for 8787, which another dask
+        # the dashboard on a free port: None still asks for dask's default, which another dask
         # (a user's own dashboard, a second run) may hold
         cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
                                dashboard_address=":0", env=worker_env(1))

@@ -171,6 +171,11 @@ class Plan:
         lo, hi = self.windows[i]
         return self.source.stamp(lo, hi)
 
+    @property
+    def window_frames(self) -> int:
+        """Frames in the longest step's window."""
+        return max(hi - lo for lo, hi in self.windows)
+
 
 def _say(progress: bool, text: str) -> None:
     if progress:
@@ -457,15 +462,14 @@ def estimate_step(plan: Plan, i: int, b: int, progress=None) -> tuple[dict, int]
 
 @lru_cache(maxsize=4)
 def _opened(source: str, views, sink_spec: str):
-    """The source and the sink's stores, opened once per worker process and run."""
+    """The source and the map series' sink, opened once per worker process and run."""
     import json
 
-    from gridflow.recording import MapStore
     from gridflow.sources import open_source
 
-    spec = json.loads(sink_spec)
-    stores = {m: MapStore.reopen(p, spec["keys"][m]) for m, p in spec["outputs"].items()}
-    return open_source(source, views=views), stores
+    from .sinks import MapSeriesSink
+
+    return open_source(source, views=views), MapSeriesSink.reopen(json.loads(sink_spec))
 
 
 def run_step(job: dict, i: int, b: int) -> dict:
@@ -480,14 +484,11 @@ def run_step(job: dict, i: int, b: int) -> dict:
     except ImportError:
         pass
     t0 = time.perf_counter()
-    source, stores = _opened(job["source"], job["views"], json.dumps(job["sink"],
-                                                                      sort_keys=True))
-    plan = replace(job["plan"], source=source)
-    ests, stamp = estimate_step(plan, i, b)
+    source, sink = _opened(job["source"], job["views"], json.dumps(job["sink"],
+                                                                    sort_keys=True))
+    ests, stamp = estimate_step(replace(job["plan"], source=source), i, b)
     t1 = time.perf_counter()
-    for m, store in stores.items():
-        e = ests[m]
-        store.write_band(i, b, {q: e[q] for q in store.quantities}, e.interior, stamp)
+    sink.write(i, b, ests, stamp)
     return {"step": i, "band": b, "estimate_s": t1 - t0, "write_s": time.perf_counter() - t1}
 
 
@@ -499,7 +500,7 @@ def _local(plan: Plan, o: RunOptions) -> tuple[int, int, int]:
     if not (isinstance(n, int) and n >= 1):
         raise UsageError(f"--workers must be a positive number, got {o.workers!r}")
     r0, r1 = plan.bands[0]
-    frames = max(hi - lo for lo, hi in plan.windows)
+    frames = plan.window_frames
     need = step_memory(plan.source.shape, frames, r1 - r0, plan.halo)
     if need > budget:
         T, Sy, Sx, H, W = plan.source.shape
@@ -672,7 +673,7 @@ def _run_tasks(plan: Plan, sink, todo, o: RunOptions, views, report: RunReport,
         where = (f"this machine: {n} {unit}(s) at once, {threads} numba thread(s) each, "
                  f"memory budget {budget / 2**30:.1f} GiB")
     cut = "" if nb == 1 else f", each in {nb} row bands of {plan.bands[0][1]} rows"
-    frames = max(hi - lo for lo, hi in plan.windows)
+    frames = plan.window_frames
     _say(o.progress, f"{len({i for i, _ in todo})} steps ({frames} frames of {Sy}x{Sx} "
          f"views of {W}x{H} px each{cut}) on {where} ...")
     report.lines.append(f"ran on {where}")

@@ -214,9 +214,22 @@ class MapSeriesSink:
         return []
 
     def spec(self) -> dict:
-        """What a worker needs to reopen the stores (paths and keys)."""
+        """What a worker needs to reopen the stores (paths and keys): :meth:`reopen`."""
         return {"outputs": {m: str(p.resolve()) for m, p in self.outputs.items()},
                 "keys": dict(self.keys)}
+
+    @classmethod
+    def reopen(cls, spec: dict) -> "MapSeriesSink":
+        """The sink of :meth:`spec` on a worker: its stores opened for writing, each
+        checked to hold this run."""
+        from gridflow.recording import MapStore
+
+        sink = cls.__new__(cls)
+        sink.outputs = {m: Path(p) for m, p in spec["outputs"].items()}
+        sink.output = next(iter(sink.outputs.values()))
+        sink.inputs, sink.keys = [], dict(spec["keys"])
+        sink.stores = {m: MapStore.reopen(p, sink.keys[m]) for m, p in sink.outputs.items()}
+        return sink
 
 
 def _describe(strategy) -> dict:

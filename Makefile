@@ -70,7 +70,7 @@ FIGS      := $(FIGDIR)/fig1.png $(FIGDIR)/fig2.png \
 OUTPUTS   := $(FIGS) results/claims.csv results/claims_paper_setup.csv results/cube.csv \
              results/peers_depth.csv results/claims_growth.csv results/leaf.csv \
              results/paper_terms.csv results/claims_paper_setup_zoom.csv \
-             results/cube_variants.csv
+             results/cube_variants.csv results/growth_maps.csv
 CUBE_SRC  := $(wildcard estimator/*.py scenes/*.py) base/loader.py base/errors.py \
              bench/cube_experiment.py bench/figures.py base/metrics.py bench/markdown.py
 
@@ -127,6 +127,12 @@ LEAF_SRC := $(wildcard estimator/*.py scenes/*.py) base/loader.py base/errors.py
             bench/leaf_experiment.py bench/figures.py
 results/leaf.csv $(FIGDIR)/fig_leaf.png &: $(LEAF_SRC) | $(STAMP) povray
 	$(BIN)/gridflow leaf --csv results/leaf.csv --fig-dir $(FIGDIR)
+
+# growth maps on leaves that grow unevenly, gridflow beside the 2-D divergence (a few
+# minutes); the table in bench/README.md is rewritten from the same rows
+results/growth_maps.csv: $(wildcard estimator/*.py generators/*.py) bench/growth_maps.py \
+                         bench/peers.py | $(STAMP)
+	$(PY) -m gridflow.bench.growth_maps --csv results/growth_maps.csv --write-doc bench/README.md
 
 # gridflow and peer methods side by side: depth on the cube rendered as a light field with
 # large disparities, motion on sinusoids and the cube.

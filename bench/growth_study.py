@@ -10,7 +10,9 @@ temporal window; the table gives Q_rel(growth) and Q_rel(U_Z) (mean and spread o
 noise seeds).  The growth is told from depth motion only by the disparity's change in
 time, ``v_t ds t``, so it gains from a wider camera spacing (while the disparity stays
 within the derivative filters' reach, about 1 px per camera step), a longer temporal
-window and a larger window.
+window and a larger window.  Each pixel is solved alone (``growth_support=0``): the
+study is of what one pixel's data can tell; pooling the depth rates over the leaf
+(the default, ``bench/growth_maps.py``) adds to any grid.
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ def study(spacings, windows, temporal, noise: float, seeds, growth: float = 1e-3
                                        noise=noise, seed=seed)
                     e = estimate(sv.volume, sv.focal_length, sv.camera_spacing, model="full",
                                  motion="affine", sigma=sigma, window=taps,
-                                 temporal_radius=radius)
+                                 temporal_radius=radius, growth_support=0)
                     r = {x["quantity"]: x for x in evaluate(e.maps, sv.truth, e.interior)}
                     g.append(r["growth"]["q_rel"])
                     u.append(r["Uz"]["q_rel"])

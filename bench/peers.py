@@ -206,37 +206,37 @@ def image_flow(maps: dict, focal_length: float, principal_point) -> dict:
                 "flow_y": (focal_length * maps["Uy"] - y * maps["Uz"]) / Z}
 
 
-def _centre_frames(volume: np.ndarray, k: int):
+def _centre_frames(volume: np.ndarray, k: int, r: int = 1):
     T, Sy, Sx = volume.shape[:3]
-    return (np.asarray(volume[k - 1, Sy // 2, Sx // 2], float),
-            np.asarray(volume[k + 1, Sy // 2, Sx // 2], float))
+    return (np.asarray(volume[k - r, Sy // 2, Sx // 2], float),
+            np.asarray(volume[k + r, Sy // 2, Sx // 2], float))
 
 
-def flow_ilk(volume: np.ndarray, k: int, radius: int = 15) -> dict:
-    """scikit-image's iterative Lucas-Kanade between frames k-1 and k+1 of the centre
-    camera, halved: the flow at frame k (central difference).  ``radius`` 15: a window
+def flow_ilk(volume: np.ndarray, k: int, radius: int = 15, r: int = 1) -> dict:
+    """scikit-image's iterative Lucas-Kanade between frames k-r and k+r of the centre
+    camera, over 2r: the flow at frame k (central difference).  ``radius`` 15: a window
     comparable to gridflow's (σ = 16); skimage's default 7 fails on the sinusoid's 8-px
     texture (its coarse-to-fine pyramid aliases: median flow -15.5 px for a true 0.5)."""
     from skimage.registration import optical_flow_ilk
 
-    a, b = _centre_frames(volume, k)
+    a, b = _centre_frames(volume, k, r)
     v, u = optical_flow_ilk(a, b, radius=radius)
-    return {"flow_x": u / 2.0, "flow_y": v / 2.0}
+    return {"flow_x": u / (2.0 * r), "flow_y": v / (2.0 * r)}
 
 
-def flow_farneback(volume: np.ndarray, k: int) -> dict:
-    """OpenCV's Farnebäck flow between frames k-1 and k+1 of the centre camera, halved.
+def flow_farneback(volume: np.ndarray, k: int, r: int = 1) -> dict:
+    """OpenCV's Farnebäck flow between frames k-r and k+r of the centre camera, over 2r.
     Images are mapped affinely onto 0-255 (float32): the method's parameters assume that
     range."""
     import cv2
 
-    a, b = _centre_frames(volume, k)
+    a, b = _centre_frames(volume, k, r)
     lo, hi = min(a.min(), b.min()), max(a.max(), b.max())
     s = 255.0 / (hi - lo) if hi > lo else 1.0
     f = cv2.calcOpticalFlowFarneback(((a - lo) * s).astype(np.float32),
                                      ((b - lo) * s).astype(np.float32), None,
                                      0.5, 3, 15, 3, 5, 1.2, 0)
-    return {"flow_x": f[..., 0] / 2.0, "flow_y": f[..., 1] / 2.0}
+    return {"flow_x": f[..., 0] / (2.0 * r), "flow_y": f[..., 1] / (2.0 * r)}
 
 
 def compare_motion(data, models=MODELS, **settings) -> list[dict]:

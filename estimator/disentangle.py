@@ -28,7 +28,7 @@ import numpy as np
 
 from .models import AFFINE, TRANSLATION, Model, MotionModel
 
-__all__ = ["disentangle", "disentangles"]
+__all__ = ["disentangle", "disentangles", "solve_affine"]
 
 # motion model -> its disentangling: world velocities (and, for affine motion, growth,
 # rotation and the slopes' rates) from the parameter vectors and the plane.  Keyed by the
@@ -58,7 +58,8 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
                 focal_length: float, spacing: tuple[float, float],
                 slant_correction: bool = True,
                 combine: str = "inverse_variance",
-                residual: np.ndarray | None = None) -> dict[str, np.ndarray]:
+                residual: np.ndarray | None = None,
+                pooling_inputs: dict | None = None) -> dict[str, np.ndarray]:
     """Parameters in world units from the parameter vectors (Sec. 3, steps 4-5).
 
     Parameters
@@ -82,6 +83,10 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
     residual : ndarray, shape (N,), optional
         The data's noise variance in units of J (motion models that give error
         estimates use it: the affine one).
+    pooling_inputs : dict, optional
+        Filled, for the affine model, with what pooling its rates needs
+        (:mod:`estimator.pooling`): ``"obs"`` (the nine observations, shape (9, N)) and
+        ``"plane"`` (``v, z_x, z_y``, shape (3, N)).
 
     Returns
     -------
@@ -120,8 +125,13 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
     except KeyError:
         raise LookupError(f"motion model {model.motion.name!r} has no disentangling: "
                           "register one with estimator.disentangle.disentangles") from None
-    out.update(motion(P, g, model, plane, x0, y0, f, spacing, slant_correction, combine2,
-                      residual))
+    maps = motion(P, g, model, plane, x0, y0, f, spacing, slant_correction, combine2,
+                  residual)
+    for key in [k for k in maps if k.startswith("_")]:
+        extra = maps.pop(key)
+        if pooling_inputs is not None:
+            pooling_inputs[key[1:]] = extra
+    out.update(maps)
     with np.errstate(divide="ignore", invalid="ignore"):
         out.update(_brightness(ct, model, Z, Zx, Zy, x0, y0, f))
     return out
@@ -319,6 +329,42 @@ def _affine(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, com
                 var[q] = combine2(var[q], 1.0 / var[q], vy, 1.0 / vy) / 2.0
     obs = np.stack([ct[:, i(r)] for r in _AFFINE_DT_ROWS]
                    + [rates[q] for q, _, _ in _AFFINE_RATE_ROWS])
+    var_obs = None
+    if residual is not None:
+        var_obs = np.stack([norm2[:, -1] * g[:, i(r)] for r in _AFFINE_DT_ROWS]
+                           + [var[q] for q, _, _ in _AFFINE_RATE_ROWS]).T * residual[:, None]
+    out = solve_affine(obs, Z, Zx, Zy, x0, y0, f, var_obs)
+    # what pooling the rates over the leaf needs (estimator.pooling): the six flow
+    # observations and the per-pixel projected slopes and rates, kept by the driver
+    out["_obs"] = obs
+    out["_plane"] = np.stack([plane["v"], plane["zx"], plane["zy"]])
+    return out
+
+
+def solve_affine(obs: np.ndarray, Z: np.ndarray, Zx: np.ndarray, Zy: np.ndarray,
+                 x0: np.ndarray, y0: np.ndarray, f: float,
+                 var_obs: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Solve each pixel's 9 x 9 system ``M theta = o`` of :func:`affine_observations` for
+    ``theta = (U, g1, g2)``; then the growth, the rotation about the normal and the
+    slopes' rates.
+
+    Parameters
+    ----------
+    obs : ndarray, shape (9, N)
+        The observations in the order of ``_AFFINE_OBS``.
+    Z, Zx, Zy, x0, y0 : ndarray, shape (N,)
+        The plane each pixel sees and the pixel relative to the principal point.
+    f : float
+    var_obs : ndarray, shape (N, 9), optional
+        The observations' variances; with them, first-order ``Uz_err``, ``growth_err``,
+        ``rotation_err`` (correlations left out).
+
+    Returns
+    -------
+    dict of str to ndarray, each shape (N,)
+        ``Ux, Uy, Uz, growth, rotation, Zx_t, Zy_t`` (and the errors); NaN where the
+        inputs are not finite.
+    """
     N = Z.size
     ok = np.isfinite(obs).all(0) & np.isfinite(Z) & np.isfinite(Zx) & np.isfinite(Zy)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -333,9 +379,7 @@ def _affine(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, com
         theta[:, ~ok] = np.nan
         out = {"Ux": theta[0], "Uy": theta[1], "Uz": theta[2]}
         out.update(_surface_rates(theta, Zx, Zy))
-        if residual is not None:
-            v = np.stack([norm2[:, -1] * g[:, i(r)] for r in _AFFINE_DT_ROWS]
-                         + [var[q] for q, _, _ in _AFFINE_RATE_ROWS]).T * residual[:, None]
+        if var_obs is not None:
             # a quantity c . theta = c . M^-1 o has variance sum_j (M^-T c)_j^2 v_j: one
             # solve with M^T for the three quantities, no inverse
             coef = _rate_coefficients(Zx, Zy)
@@ -343,7 +387,7 @@ def _affine(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, com
                           coef["rotation"]], axis=2)
             MT = M.transpose(0, 2, 1)
             A = np.linalg.solve(MT, np.where(ok[:, None, None], C, 0.0))
-            sd = np.sqrt(np.einsum("njq,nj->qn", A * A, v))
+            sd = np.sqrt(np.einsum("njq,nj->qn", A * A, var_obs))
             sd[:, ~ok] = np.nan
             out["Uz_err"], out["growth_err"], out["rotation_err"] = sd
     return out

@@ -17,9 +17,11 @@ import numpy as np
 
 from .backends import TensorPlan, select_backend
 from .disentangle import disentangle
+from .disentangle import solve_affine
 from .filters import FilterPair, get_filter_pair
 from .models import (BRIGHTNESS_MODELS, MODELS, MOTION_MODELS, ZOOM_ROW_SIGNALS, Model,
                      covering_rows, get_model, one_frame_problem, zoom_rows)
+from .pooling import pool_rates, pool_reach
 from .result import Estimate
 from .settings import EstimatorSettings, InputError
 from .signals import SignalPlan, signal_plan
@@ -122,21 +124,30 @@ def _check_volume(volume, backend) -> tuple[np.ndarray, float]:
     return volume, amax
 
 
+def _border(s: EstimatorSettings) -> int:
+    """The maps' border of NaN: the window's radius plus the spatial derivative
+    filter's (the pixels without a whole window)."""
+    return s.window // 2 + get_filter_pair(s.filters).radius
+
+
 def window_halo(s: EstimatorSettings) -> int:
     """Pixels either side of a pixel that its estimate reads: the window's radius plus the
-    spatial derivative filter's.  The maps' border of NaN is this wide, and a row band
-    estimated with this many rows either side gives the whole image's maps there."""
-    return s.window // 2 + get_filter_pair(s.filters).radius
+    spatial derivative filter's, plus, under affine motion, the reach of the pooled
+    rates (:func:`estimator.pooling.pool_reach`).  A row band estimated with this many
+    rows either side gives the whole image's maps there."""
+    return _border(s) + pool_reach(s.pooling_sigma)
 
 
 def temporal_reach(s: EstimatorSettings) -> int:
     """Frames either side of the reference frame that an estimate reads where the volume
-    has them: the temporal radius of Omega (``s.temporal_radius``, default 2) plus the
+    has them: the temporal radius of Omega (``s.temporal_radius``, default the motion
+    model's: 2 under translation, 6 under affine motion) plus the
     temporal derivative filter's radius.  A window of ``2 * reach + 1`` frames around a
     frame gives the same estimate there as the whole sequence; with fewer frames the
     driver narrows the window or falls back to the 3-tap filters (:func:`_time_window`).
     """
-    radius = 2 if s.temporal_radius is None else int(s.temporal_radius)
+    radius = (MOTION_MODELS[s.motion].temporal_radius if s.temporal_radius is None
+              else int(s.temporal_radius))
     return radius + get_filter_pair(s.filters).radius
 
 
@@ -180,7 +191,8 @@ def _time_window(s: EstimatorSettings, T: int, k_ref: int, models) -> tuple[Filt
         need = "at least 5 frames (3 in the temporal window)" if needs_t else "at least 3 frames"
         raise InputError(f"too few frames around the reference frame: T = {T}, k_ref = "
                          f"{k_ref}; models {models} with motion {s.motion!r} need {need}")
-    R_t = min(2, reach - time.radius) if s.temporal_radius is None else int(s.temporal_radius)
+    R_t = (min(MOTION_MODELS[s.motion].temporal_radius, reach - time.radius)
+           if s.temporal_radius is None else int(s.temporal_radius))
     if R_t < 0 or R_t > reach - time.radius or (needs_t and R_t < 1):
         raise InputError(f"temporal_radius {R_t} does not fit: frames {k_ref} +- {R_t} need "
                          f"{time.radius} more frames either side, T = {T}")
@@ -238,7 +250,7 @@ def _plan(volume, focal_length, camera_spacing, principal_point, s: EstimatorSet
         time, k_ref, R_t = None, 0, 0
     else:
         time, R_t = _time_window(s, T, k_ref, models)
-    halo = window_halo(s)
+    halo = _border(s)
     if H <= 2 * halo or W <= 2 * halo:
         raise InputError(f"image {H}x{W} too small for a {s.window}-tap window and "
                          f"{spatial.taps}-tap filters: need more than {2 * halo} pixels "
@@ -353,6 +365,11 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         return dict(zip(names, a))
 
     out = {m: nan_border(mdl[m].outputs + ("model_error",)) for m in models}
+    # the affine model's per-pixel observations and plane, for pooling its rates after
+    # the last band (estimator.pooling): nine observations, then v, z_x, z_y
+    sigma_pool = s.pooling_sigma
+    pool = {m: np.full((12, H, W), np.nan) for m in models
+            if mdl[m].motion.pools_rates and sigma_pool > 0}
     # disentangling runs over a few rows at a time: its many (N,) temporaries then stay
     # small enough for the allocator to reuse (and in cache) instead of each costing
     # fresh pages (measured at 512^2, full model: 0.041 s in one call, about 0.025 s so)
@@ -375,9 +392,14 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
             for a in range(0, r1 - r0, step):
                 b = min(a + step, r1 - r0)
                 px = slice(a * cols.size, b * cols.size)
+                keep = {} if m in pool else None
                 res = disentangle(P[px], g[px], mdl[m], x0[px], y0[px], plan.focal_length,
                                   plan.spacing, slant_correction=s.slant_correction,
-                                  combine=s.combine, residual=err[px] / n_eff)
+                                  combine=s.combine, residual=err[px] / n_eff,
+                                  pooling_inputs=keep)
+                if keep:
+                    pool[m][:, r0 + a:r0 + b, halo:W - halo] = np.concatenate(
+                        [keep["obs"], keep["plane"]]).reshape(12, b - a, cols.size)
                 # an eigenvalue of J: undo the internal rescaling (J scales with its
                 # square).  For |V| beyond ~1e154 the true value is not representable:
                 # it becomes inf.
@@ -385,9 +407,54 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
                     res["model_error"] = (np.where(valid[px], err[px], np.nan) * inv) * inv
                 for name, val in res.items():
                     out[m][name][r0 + a:r0 + b, halo:W - halo] = val.reshape(b - a, cols.size)
+    for m, kept in pool.items():
+        out[m].update(_pooled(kept, interior, sigma_pool, plan))
+    for m in models:
+        if "pooled" in out[m] and m not in pool:
+            # not pooled (growth_support 0): every interior pixel solved alone
+            out[m]["pooled"][interior] = 0.0
     used = dict(s.as_dict(), filters_xy=plan.spatial.name, filters_sx=plan.cam_x.name,
                 filters_sy=plan.cam_y.name if plan.cam_y else None,
                 filters_t=plan.time.name if plan.time else None,
-                temporal_radius=plan.R_t, ref_frame=plan.k_ref, backend=backend.name)
+                temporal_radius=plan.R_t, ref_frame=plan.k_ref, backend=backend.name,
+                growth_support=sigma_pool if mdl[models[0]].motion.pools_rates else None)
     return {m: Estimate(out[m], m, interior, dict(used, model=m), motion=s.motion)
             for m in models}
+
+
+def _pooled(kept: np.ndarray, interior: np.ndarray, sigma: float, plan: Plan) -> dict:
+    """The affine model's motion with its depth motion and tilt rates pooled
+    (:func:`estimator.pooling.pool_rates`) and each pixel's 9 x 9 system solved again
+    with them (``docs/model.md``, *Pooled depth rates*).
+
+    ``kept``: shape (12, H, W), the nine observations then ``v, z_x, z_y`` per pixel.
+    Returns the maps that replace the per-pixel solution's (``Ux, Uy, Uz, growth,
+    rotation, Zx_t, Zy_t``) and ``pooled``: 1 where the pooled rates were used, 0 where
+    the pixel kept its own, NaN outside the interior.  The error estimates stay those of
+    the per-pixel solution."""
+    obs, (v, zx, zy) = kept[:9], kept[9:]
+    valid = interior & np.isfinite(kept).all(0)
+    rates, used = pool_rates(np.stack([zx, zy, obs[6], obs[7], obs[8]]), valid, sigma)
+    zx, zy = rates[0][valid], rates[1][valid]
+    H, W = interior.shape
+    yy, xx = np.nonzero(valid)
+    x0 = xx - plan.cx
+    y0 = yy - plan.cy
+    f = plan.focal_length
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Z = -f / v[valid]
+        # the plane's slopes from the pooled projected ones (as in disentangle)
+        den = 1.0 + (zx * x0 + zy * y0) * Z / f
+        Zx, Zy = zx * Z / den, zy * Z / den
+    o = np.concatenate([obs[:6, valid], rates[2:, valid]])
+    res = solve_affine(o, Z, Zx, Zy, x0, y0, f)
+    out = {}
+    for name, val in res.items():
+        a = np.full((H, W), np.nan)
+        a[valid] = val
+        out[name] = a
+    flag = np.full((H, W), np.nan)
+    flag[interior] = 0.0
+    flag[used] = 1.0
+    out["pooled"] = flag
+    return out

@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 
 from .filters import FILTER_NAMES
-from .models import MOTIONS, TRANSLATION
+from .models import MOTION_MODELS, MOTIONS, TRANSLATION
 
 __all__ = ["InputError", "EstimatorSettings", "METHODS", "COMBINE", "DEFAULTS"]
 
@@ -49,7 +49,8 @@ class EstimatorSettings:
         ``"matched3"`` is used on an axis with fewer samples than the pair needs.
     temporal_radius : int or None
         The neighbourhood spans frames ``k_ref - R .. k_ref + R`` with uniform weights.
-        Default: as many as the temporal filter allows, at most 2.
+        Default: as many as the temporal filter allows, at most 2 under translation and
+        at most 6 under affine motion (the motion model's ``temporal_radius``).
     ref_frame : int or None
         Reference frame ``k_ref``; default the centre frame ``(T - 1) // 2``.
     method : {"fast", "grouped", "reference"}
@@ -77,6 +78,10 @@ class EstimatorSettings:
         patch (default), or a velocity varying affinely across the surface, which adds
         the growth, the rotation about the normal and the slopes' rates of change
         (``docs/model.md``, *Affine motion*).
+    growth_support : float or None
+        Affine motion: the standard deviation, pixels, of the Gaussian support over
+        which the depth motion and tilt rates are pooled (:mod:`estimator.pooling`);
+        default ``6 * sigma`` (96 px at the default sigma); 0 solves each pixel alone.
     """
 
     sigma: float = 16.0
@@ -90,6 +95,7 @@ class EstimatorSettings:
     band_rows: int | None = None
     combine: str = "inverse_variance"
     motion: str = TRANSLATION.name
+    growth_support: float | None = None
 
     def __post_init__(self) -> None:
         """Refuse settings that are of the wrong type or out of range (InputError naming
@@ -116,9 +122,22 @@ class EstimatorSettings:
             raise InputError(f"combine must be one of {COMBINE}, got {self.combine!r}")
         if self.motion not in MOTIONS:
             raise InputError(f"motion must be one of {MOTIONS}, got {self.motion!r}")
+        gs = self.growth_support
+        if gs is not None and (isinstance(gs, bool) or not isinstance(gs, (int, float, np.number))
+                               or not (np.isfinite(gs) and gs >= 0)):
+            raise InputError(f"growth_support must be a non-negative number of pixels or "
+                             f"None, got {gs!r}")
         if self.band_rows is not None and not (_integer(self.band_rows) and self.band_rows >= 1):
             raise InputError(f"band_rows must be a positive integer or None, got "
                              f"{self.band_rows!r}")
+
+    @property
+    def pooling_sigma(self) -> float:
+        """The pooling support in pixels (0: none) for this motion model."""
+        if not MOTION_MODELS[self.motion].pools_rates:
+            return 0.0
+        return 6.0 * float(self.sigma) if self.growth_support is None \
+            else float(self.growth_support)
 
     def as_dict(self) -> dict:
         """The settings as a plain dict (what results and provenance record)."""

@@ -13,7 +13,11 @@ velocity gradient ``G`` about the point ``X_c = (0, 0, Z0)`` the reference pixel
 ``G_XX .. G_ZZ`` parameters (``G_XY = dV_X / dY``), an isotropic growth in the plane
 (``growth / 2`` times the projector onto it: the relative rate of change of area) and a
 rotation about the plane's normal ``n = (-Z_X, -Z_Y, 1) / |.|`` at ``rotation`` rad per
-unit time (right-handed in the camera frame).  Texture and brightness change are
+unit time (right-handed in the camera frame).  An uneven growth ``growth_x`` adds a
+displacement along the plane first: ``M`` is replaced by ``M + t growth_x Xm^2 / 2 e1``,
+whose surface divergence is ``growth_x Xm`` (the growth of a leaf that grows faster at
+its base than at its tip); the ray cast finds the mapped plane's coordinate
+``Xm' = Xm + t growth_x Xm^2 / 2`` and inverts it in closed form.  Texture and brightness change are
 functions of the material coordinates (Eq. 8, 11)::
 
     I = T(Xm, Ym) * exp((a1 + a1x Xm + a1y Ym) t + (a2 + a2x Xm + a2y Ym) t^2)
@@ -107,6 +111,13 @@ class SinusoidParams:
     G_XX, G_XY, G_XZ, G_YX, G_YY, G_YZ, G_ZX, G_ZY, G_ZZ : float
         A velocity gradient ``dV_I / dJ`` per unit time, added to the two above
         (anisotropic growth, shear, rotation about any axis).
+    growth_x : float
+        Uneven growth: the growth's change per world unit along the material coordinate
+        ``Xm`` (per unit time per world unit), so that the growth at a material point is
+        ``growth + growth_x Xm`` (a leaf growing faster at its base than at its tip).  The
+        material points move by ``t growth_x Xm^2 / 2`` along ``e1`` within the plane
+        before ``I + G t`` acts (module docstring), so the plane stays a plane and the
+        rendering stays exact.
     """
 
     Z0: float = 100.0
@@ -146,6 +157,7 @@ class SinusoidParams:
     G_ZX: float = 0.0
     G_ZY: float = 0.0
     G_ZZ: float = 0.0
+    growth_x: float = 0.0
 
     def __post_init__(self) -> None:
         if self.texture not in TEXTURES:
@@ -204,7 +216,8 @@ class SinusoidParams:
     @property
     def deforms(self) -> bool:
         """Whether the plane deforms or rotates (a velocity gradient is set)."""
-        return any(getattr(self, n) != 0 for n in ("growth", "rotation") + GRADIENT_PARAMS)
+        return any(getattr(self, n) != 0
+                   for n in ("growth", "rotation", "growth_x") + GRADIENT_PARAMS)
 
 
 def _normal(p: SinusoidParams) -> np.ndarray:
@@ -261,8 +274,20 @@ def _intersect_deforming(p: SinusoidParams, G: np.ndarray, x, y, sx: float, sy: 
     point ``M = X_c + Xm e1 + Ym e2`` is at ``X_c + U t + (I + G t)(M - X_c)``.  Along the
     ray ``s + Z r``, ``r = (x/f, y/f, 1)``: ``q = s + Z r - X_c - U t = Xm c1 + Ym c2``
     with ``c_i = (I + G t) e_i``, so ``q`` lies in the plane spanned by ``c1, c2`` (normal
-    ``N = c1 x c2``), which gives ``Z``, then ``(Xm, Ym)`` from the 2 x 2 Gram system."""
-    return _intersect_mapped(p, np.eye(3) + G * t, x, y, sx, sy, t)
+    ``N = c1 x c2``), which gives ``Z``, then ``(Xm, Ym)`` from the 2 x 2 Gram system.
+    With an uneven growth the coordinate found is ``Xm' = Xm + t b Xm^2 / 2`` (``b =
+    growth_x``), inverted as ``Xm = 2 Xm' / (1 + sqrt(1 + 2 t b Xm'))`` (the root that is
+    ``Xm'`` at ``t b = 0``, without the cancellation of the textbook form)."""
+    Z, Xm, Ym = _intersect_mapped(p, np.eye(3) + G * t, x, y, sx, sy, t)
+    if p.growth_x != 0 and t != 0:
+        disc = 1.0 + 2.0 * t * p.growth_x * Xm
+        if np.any(disc <= 0):
+            raise ParameterError(
+                f"growth_x={p.growth_x} folds the plane at t = {t:g} (material points "
+                "would pass each other): use a smaller growth_x, fewer frames or a smaller "
+                "image")
+        Xm = 2.0 * Xm / (1.0 + np.sqrt(disc))
+    return Z, Xm, Ym
 
 
 def _intersect_mapped(p: SinusoidParams, A: np.ndarray, x, y, sx: float, sy: float,
@@ -429,12 +454,22 @@ def ground_truth(p: SinusoidParams) -> dict[str, np.ndarray]:
     # the velocity of the material point each pixel sees, V = U + G (M - X_c)
     e1, e2 = np.array([1.0, 0.0, p.Z_X]), np.array([0.0, 1.0, p.Z_Y])
     U = np.array([p.U_X, p.U_Y, p.U_Z])
-    V = [U[i] + (G[i] @ e1) * Xm + (G[i] @ e2) * Ym for i in range(3)]
+    b = p.growth_x
+    V = [U[i] + (G[i] @ e1) * Xm + (G[i] @ e2) * Ym + 0.5 * b * Xm * Xm * e1[i]
+         for i in range(3)]
     # growth: the surface divergence tr((I - n n^T) G); rotation: w . n with w the axial
     # vector of G's antisymmetric part
     n = _normal(p)
     growth = float(np.trace((np.eye(3) - np.outer(n, n)) @ G))
     w = 0.5 * np.array([G[2, 1] - G[1, 2], G[0, 2] - G[2, 0], G[1, 0] - G[0, 1]])
+    # the uneven growth's field b Xm^2 / 2 e1 has the surface gradient L d = b Xm e1 (e1*.d)
+    # (e1* the dual tangent): divergence b Xm, and a turn about n of
+    # b Xm ((t2.e1)(e1*.t1) - (t1.e1)(e1*.t2)) / 2, zero unless the tangents are oblique
+    m = np.array([[e1 @ e1, e1 @ e2], [e1 @ e2, e2 @ e2]])
+    e1_dual = np.linalg.inv(m)[0] @ np.stack([e1, e2])
+    t1 = e1 / np.linalg.norm(e1)
+    t2 = np.cross(n, t1)
+    turn = 0.5 * ((t2 @ e1) * (e1_dual @ t1) - (t1 @ e1) * (e1_dual @ t2))
     # slopes' rates: the normal e1 x e2 = (-Z_X, -Z_Y, 1) moves by G e1 x e2 + e1 x G e2;
     # Z_X = -N_x / N_z, so dZ_X/dt = -dN_x - Z_X dN_z (N_z = 1)
     dN = np.cross(G @ e1, e2) + np.cross(e1, G @ e2)
@@ -442,7 +477,7 @@ def ground_truth(p: SinusoidParams) -> dict[str, np.ndarray]:
         "Z": Z,
         "Zx": const(p.Z_X), "Zy": const(p.Z_Y),
         "Ux": V[0] * dt, "Uy": V[1] * dt, "Uz": V[2] * dt,
-        "growth": const(growth * dt), "rotation": const(float(w @ n) * dt),
+        "growth": (growth + b * Xm) * dt, "rotation": (float(w @ n) + b * turn * Xm) * dt,
         "Zx_t": const((-dN[0] - p.Z_X * dN[2]) * dt),
         "Zy_t": const((-dN[1] - p.Z_Y * dN[2]) * dt),
         "a1": (p.a1 + p.a1x * Xm + p.a1y * Ym) * dt,

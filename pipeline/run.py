@@ -202,7 +202,8 @@ def _views_used(n: int, select: str) -> str:
 _SINGLE_PASS_ONLY = {"temporal_radius": "--temporal-radius", "ref_frame": "--ref-frame",
                      "method": "--method", "slant_correction": "--no-slant-correction",
                      "zoom_correction": "--no-zoom-correction",
-                     "combine": "--combine", "motion": "--motion"}
+                     "combine": "--combine", "motion": "--motion",
+                     "growth_support": "--growth-support"}
 
 
 def choose_strategy(source, o: RunOptions) -> tuple[object, list[str]]:

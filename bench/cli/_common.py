@@ -155,7 +155,12 @@ def add_estimator_args(p: argparse.ArgumentParser) -> None:
                    help=f"derivative filters (default {DEFAULTS['filters']})")
     g.add_argument("--temporal-radius", type=int, default=None,
                    help="frames either side of the reference frame in the window (default "
-                        "as many as the temporal filter reaches, at most 2)")
+                        "as many as the temporal filter reaches, at most 2; 6 with "
+                        "--motion affine)")
+    g.add_argument("--growth-support", type=float, default=None, metavar="PX",
+                   help="--motion affine: the Gaussian (sd, px) over which depth motion and "
+                        "tilt rates are pooled (default 6 x --sigma; 0: each pixel alone; "
+                        "docs/model.md, Pooled depth rates)")
     g.add_argument("--ref-frame", type=int, default=None,
                    help="index of the reference frame, whose maps are estimated (default "
                         "the input's: the centre frame unless it states another)")
@@ -189,7 +194,7 @@ def estimator_settings(a) -> dict:
     field can refuse the single pass's settings instead of ignoring them."""
     s = dict(filters=a.filters, temporal_radius=a.temporal_radius, ref_frame=a.ref_frame,
              method=a.method, combine=a.combine, motion=a.motion, sigma=a.sigma,
-             window=a.window)
+             window=a.window, growth_support=a.growth_support)
     if a.no_slant_correction:
         s["slant_correction"] = False
     if a.no_zoom_correction:

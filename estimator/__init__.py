@@ -20,10 +20,11 @@ from .result import Estimate
 from .settings import COMBINE, DEFAULTS, METHODS, EstimatorSettings, InputError
 
 __all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
-           "window_halo", "temporal_reach", "MODELS", "MOTIONS", "METHODS", "COMBINE",
+           "window_halo", "band_halo", "temporal_reach", "MODELS", "MOTIONS", "METHODS", "COMBINE",
            "FILTER_NAMES", "DEFAULTS"]
 
-_FROM_DRIVER = {"estimate", "estimate_models", "window_halo", "temporal_reach"}
+_FROM_DRIVER = {"estimate", "estimate_models", "window_halo", "band_halo",
+                "temporal_reach"}
 
 
 def __getattr__(name):

@@ -338,6 +338,8 @@ def _affine(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, com
     # observations and the per-pixel projected slopes and rates, kept by the driver
     out["_obs"] = obs
     out["_plane"] = np.stack([plane["v"], plane["zx"], plane["zy"]])
+    if var_obs is not None:
+        out["_var_vt"] = var_obs[:, 6]
     return out
 
 

@@ -21,14 +21,14 @@ from .disentangle import solve_affine
 from .filters import FilterPair, get_filter_pair
 from .models import (BRIGHTNESS_MODELS, MODELS, MOTION_MODELS, ZOOM_ROW_SIGNALS, Model,
                      covering_rows, get_model, one_frame_problem, zoom_rows)
-from .pooling import pool_rates, pool_reach
+from .pooling import pool_rates, pool_reach, texture_reach, textured_windows
 from .result import Estimate
 from .settings import EstimatorSettings, InputError
 from .signals import SignalPlan, signal_plan
 from .tensor import gaussian_moment_kernels, zoom_corrected
 
 __all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
-           "window_halo", "temporal_reach"]
+           "window_halo", "band_halo", "temporal_reach"]
 
 # Pixels per call of the disentangling (whole rows): 8192 doubles are 64 KB, below
 # glibc's threshold for giving each array fresh pages of its own.
@@ -124,18 +124,24 @@ def _check_volume(volume, backend) -> tuple[np.ndarray, float]:
     return volume, amax
 
 
-def _border(s: EstimatorSettings) -> int:
-    """The maps' border of NaN: the window's radius plus the spatial derivative
-    filter's (the pixels without a whole window)."""
+def window_halo(s: EstimatorSettings) -> int:
+    """The maps' border of NaN: the window's radius plus the spatial derivative filter's
+    (the pixels without a whole window).  An image needs more than twice this many
+    pixels per side."""
     return s.window // 2 + get_filter_pair(s.filters).radius
 
 
-def window_halo(s: EstimatorSettings) -> int:
-    """Pixels either side of a pixel that its estimate reads: the window's radius plus the
-    spatial derivative filter's, plus, under affine motion, the reach of the pooled
-    rates (:func:`estimator.pooling.pool_reach`).  A row band estimated with this many
-    rows either side gives the whole image's maps there."""
-    return _border(s) + pool_reach(s.pooling_sigma)
+def band_halo(s: EstimatorSettings) -> int:
+    """Rows either side of a row band that its estimate reads: :func:`window_halo`, plus,
+    under affine motion, the reach of the pooled rates
+    (:func:`estimator.pooling.pool_reach`).  A band estimated with this many rows either
+    side (where the image has them) gives the whole image's maps there."""
+    sigma = s.pooling_sigma
+    if sigma == 0:
+        return window_halo(s)
+    # the pooled fits read pool_reach rows, and the texture test of each pixel they read
+    # its own window
+    return window_halo(s) + pool_reach(sigma) + texture_reach(s.window // 2)
 
 
 def temporal_reach(s: EstimatorSettings) -> int:
@@ -250,7 +256,7 @@ def _plan(volume, focal_length, camera_spacing, principal_point, s: EstimatorSet
         time, k_ref, R_t = None, 0, 0
     else:
         time, R_t = _time_window(s, T, k_ref, models)
-    halo = _border(s)
+    halo = window_halo(s)
     if H <= 2 * halo or W <= 2 * halo:
         raise InputError(f"image {H}x{W} too small for a {s.window}-tap window and "
                          f"{spatial.taps}-tap filters: need more than {2 * halo} pixels "
@@ -368,7 +374,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     # the affine model's per-pixel observations and plane, for pooling its rates after
     # the last band (estimator.pooling): nine observations, then v, z_x, z_y
     sigma_pool = s.pooling_sigma
-    pool = {m: np.full((12, H, W), np.nan) for m in models
+    pool = {m: np.full((13, H, W), np.nan) for m in models
             if mdl[m].motion.pools_rates and sigma_pool > 0}
     # disentangling runs over a few rows at a time: its many (N,) temporaries then stay
     # small enough for the allocator to reuse (and in cache) instead of each costing
@@ -399,7 +405,8 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
                                   pooling_inputs=keep)
                 if keep:
                     pool[m][:, r0 + a:r0 + b, halo:W - halo] = np.concatenate(
-                        [keep["obs"], keep["plane"]]).reshape(12, b - a, cols.size)
+                        [keep["obs"], keep["plane"], keep["var_vt"][None]]
+                    ).reshape(13, b - a, cols.size)
                 # an eigenvalue of J: undo the internal rescaling (J scales with its
                 # square).  For |V| beyond ~1e154 the true value is not representable:
                 # it becomes inf.
@@ -407,8 +414,11 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
                     res["model_error"] = (np.where(valid[px], err[px], np.nan) * inv) * inv
                 for name, val in res.items():
                     out[m][name][r0 + a:r0 + b, halo:W - halo] = val.reshape(b - a, cols.size)
+    if pool:
+        Sy, Sx = vol.shape[1:3]
+        textured = textured_windows(vol[plan.k_ref, Sy // 2, Sx // 2], s.window // 2)
     for m, kept in pool.items():
-        out[m].update(_pooled(kept, interior, sigma_pool, plan))
+        out[m].update(_pooled(kept, interior, textured, sigma_pool, plan))
     for m in models:
         if "pooled" in out[m] and m not in pool:
             # not pooled (growth_support 0): every interior pixel solved alone
@@ -422,19 +432,26 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
             for m in models}
 
 
-def _pooled(kept: np.ndarray, interior: np.ndarray, sigma: float, plan: Plan) -> dict:
+def _pooled(kept: np.ndarray, interior: np.ndarray, textured: np.ndarray, sigma: float,
+            plan: Plan) -> dict:
     """The affine model's motion with its depth motion and tilt rates pooled
     (:func:`estimator.pooling.pool_rates`) and each pixel's 9 x 9 system solved again
     with them (``docs/model.md``, *Pooled depth rates*).
 
-    ``kept``: shape (12, H, W), the nine observations then ``v, z_x, z_y`` per pixel.
+    ``kept``: shape (13, H, W), the nine observations, ``v, z_x, z_y`` and the first-order
+    variance of ``v_t`` per pixel; ``textured`` (H, W): the pixels whose window sees
+    texture everywhere (:func:`estimator.pooling.textured_windows`), the only ones fitted.
     Returns the maps that replace the per-pixel solution's (``Ux, Uy, Uz, growth,
     rotation, Zx_t, Zy_t``) and ``pooled``: 1 where the pooled rates were used, 0 where
     the pixel kept its own, NaN outside the interior.  The error estimates stay those of
     the per-pixel solution."""
-    obs, (v, zx, zy) = kept[:9], kept[9:]
-    valid = interior & np.isfinite(kept).all(0)
-    rates, used = pool_rates(np.stack([zx, zy, obs[6], obs[7], obs[8]]), valid, sigma)
+    obs, (v, zx, zy, var_vt) = kept[:9], kept[9:]
+    valid = interior & np.isfinite(kept).all(0) & (var_vt > 0)
+    # each pixel weighted by the inverse of its v_t's first-order variance: a pixel whose
+    # window reaches off the leaf, or sees little texture, counts for little
+    weights = np.where(valid & textured, 1.0 / np.where(valid, var_vt, 1.0), 0.0)
+    rates, used = pool_rates(np.stack([zx, zy, obs[6], obs[7], obs[8]]), valid, sigma,
+                             weights=weights)
     zx, zy = rates[0][valid], rates[1][valid]
     H, W = interior.shape
     yy, xx = np.nonzero(valid)

@@ -7,15 +7,17 @@ observations) are well determined per pixel.  On a plane that moves and turns as
 whole the rates are simple functions of the pixel (``docs/model.md``, *Pooled depth
 rates*): ``z_x = Z_x / c`` and ``z_y = Z_y / c`` are constant, ``v_t`` is affine in
 ``x, y``, ``z_x,t`` and ``z_y,t`` are constant, whatever the growth pattern in the plane.
-A local linear fit of each rate over a Gaussian support much wider than the estimator's
+A local linear fit of each rate over a bell-shaped support much wider than the estimator's
 window keeps that exactly and averages the noise over the support; the per-pixel 9 x 9
 solve then takes the pooled rates with the pixel's own flow and flow gradient.
 
-Where a rate departs from its fit by more than ``k`` times the residuals' local spread
+Only pixels whose window sees texture everywhere (:func:`textured_windows`: not
+reaching over a leaf's edge onto a blank background) enter the fits, each weighted by
+the inverse of its ``v_t``'s first-order variance.  Where a rate departs from its fit by more than ``k`` times the residuals' local spread
 (a fold, an edge, a second leaf), the pixel keeps its own rates (the per-pixel solution)
 and the fit is redone without it; the map ``pooled`` says which.
 
-Numerics only (scipy.ndimage's Gaussian filter); everything a pixel's result reads lies
+Numerics only (scipy.ndimage's box filters); everything a pixel's result reads lies
 within :func:`pool_reach` pixels, so a row band with that many more rows either side
 gives the whole image's result.
 """
@@ -27,15 +29,20 @@ import math
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["POOLED_RATES", "pool_reach", "local_linear_fit", "pool_rates"]
+__all__ = ["POOLED_RATES", "pool_reach", "local_linear_fit", "pool_rates",
+           "textured_windows", "texture_reach"]
 
 # the per-pixel quantities pooled: the projected slopes and the rates of the disparity
 # and of the projected slopes at a fixed pixel
 POOLED_RATES = ("zx", "zy", "v_t", "zx_t", "zy_t")
 
-# the Gaussian is cut at this many standard deviations (scipy's default 4 would widen
-# the reach by a third for weights below 3e-4 of the peak)
-_TRUNCATE = 3.0
+# The support is three passes of a box filter (a quadratic B-spline, bell-shaped like a
+# Gaussian of the same variance): each pass costs the same whatever its width (scipy's
+# running sum), where a sampled Gaussian of sigma 96 px would take 577 taps, and its
+# reach is exact and finite (1.5 (w - 1) <= 3 sigma).  The local linear fit below is
+# exact on affine fields for any kernel.
+_PASSES = 3
+
 
 # a pixel whose rate lies further than this many local standard deviations of the
 # residual from the fit keeps its own rates: at 4 sd a Gaussian residual crosses it at
@@ -44,30 +51,77 @@ _TRUNCATE = 3.0
 OUTLIER_SD = 4.0
 
 
+def _box_width(sigma: float) -> int:
+    """The odd box width whose three passes have variance closest to ``sigma^2``: a box
+    of ``w`` taps has variance ``(w^2 - 1) / 12``."""
+    w = math.sqrt(12.0 * sigma * sigma / _PASSES + 1.0)
+    return max(1, 2 * int(round((w - 1) / 2)) + 1)
+
+
 def _radius(sigma: float) -> int:
-    return int(math.ceil(_TRUNCATE * sigma))
+    return _PASSES * (_box_width(sigma) - 1) // 2
 
 
 def pool_reach(sigma: float) -> int:
     """Pixels either side whose per-pixel rates a pixel's pooled rates read: two passes
-    (the fit that finds the outliers, then the fit without them) of a Gaussian of
-    standard deviation ``sigma`` cut at 3 ``sigma``.  0 when ``sigma`` is 0 (no pooling).
-    """
+    (the fit that finds the outliers, then the fit without them) of the support of
+    standard deviation ``sigma`` (radius about 3 ``sigma``).  0 when ``sigma`` is 0 (no
+    pooling)."""
     return 0 if sigma == 0 else 2 * _radius(sigma)
+
+
+def texture_reach(radius: int) -> int:
+    """Pixels either side that :func:`textured_windows` reads for a window radius."""
+    return radius + 4
 
 
 def _smooth(a: np.ndarray, sigma: float) -> np.ndarray:
     # zeros outside the image: together with the weights' own smoothing this is the
     # normalized convolution (Knutsson & Westin) of the samples inside
-    return ndimage.gaussian_filter(a, sigma, mode="constant", cval=0.0, truncate=_TRUNCATE)
+    w = _box_width(sigma)
+    for axis in (0, 1):
+        for _ in range(_PASSES):
+            a = ndimage.uniform_filter1d(a, w, axis=axis, mode="constant", cval=0.0)
+    return a
+
+
+# a window "sees texture everywhere" when its least textured pixel has at least this
+# fraction of the window's mean gradient energy: a window reaching over a leaf's edge
+# onto a dark, blank background fails it (there the energy is 0); the sinusoids pass it
+# (their energy, smoothed over 1 px, never falls to 1/100 of its mean)
+_BLANK = 0.01
+
+
+def textured_windows(image: np.ndarray, radius: int) -> np.ndarray:
+    """Pixels whose window (``2 radius + 1`` px square) holds no blank part: the least
+    gradient energy in it (smoothed over 1 px) is at least 1/100 of its mean.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W)
+        The reference camera's image at the reference frame.
+    radius : int
+        The estimator's window radius, px.
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+        Reads pixels up to ``radius + 4`` away.
+    """
+    gy, gx = np.gradient(np.asarray(image, dtype=float))
+    energy = ndimage.gaussian_filter(gx * gx + gy * gy, 1.0, mode="nearest", truncate=3.0)
+    size = 2 * radius + 1
+    low = ndimage.minimum_filter(energy, size=size, mode="nearest")
+    mean = ndimage.uniform_filter(energy, size=size, mode="nearest")
+    return low > _BLANK * mean
 
 
 def local_linear_fit(values: np.ndarray, weights: np.ndarray, sigma: float) -> np.ndarray:
     """Weighted local linear regression of each map on the pixel coordinates.
 
     At each pixel ``p`` the fit minimises ``sum_q K(q - p) w_q (v_q - a - b (x_q - x_p) -
-    c (y_q - y_p))^2`` with ``K`` a Gaussian of standard deviation ``sigma`` (cut at 3
-    ``sigma``) and returns ``a``: exact for values affine in ``x, y``, and a weighted
+    c (y_q - y_p))^2`` with ``K`` a bell of standard deviation ``sigma`` (three box
+    filters, radius about 3 ``sigma``) and returns ``a``: exact for values affine in ``x, y``, and a weighted
     average elsewhere.  Where the weights do not determine a plane (fewer than three
     weighted pixels in line), NaN.
 
@@ -99,24 +153,31 @@ def local_linear_fit(values: np.ndarray, weights: np.ndarray, sigma: float) -> n
     sxx = m["xx"] - 2 * x * m["x"] + x * x * s0
     sxy = m["xy"] - x * m["y"] - y * m["x"] + x * y * s0
     syy = m["yy"] - 2 * y * m["y"] + y * y * s0
-    A = np.stack([np.stack([s0, sx, sy], -1), np.stack([sx, sxx, sxy], -1),
-                  np.stack([sy, sxy, syy], -1)], -2)            # (H, W, 3, 3)
-    ok = np.linalg.det(A) > 1e-9 * np.maximum(s0, 1e-300) ** 3 * sigma ** 4
-    A[~ok] = np.eye(3)
+    # the fit's constant term needs only the first row of A^-1 (A the symmetric 3 x 3
+    # normal matrix [[s0, sx, sy], [sx, sxx, sxy], [sy, sxy, syy]]): its cofactors
+    c0 = sxx * syy - sxy * sxy
+    c1 = sxy * sy - sx * syy
+    c2 = sx * sxy - sxx * sy
+    det = s0 * c0 + sx * c1 + sy * c2
+    # a plane needs samples within reach, not in one line: s0 above the running sums'
+    # roundoff, and A far from singular
+    ok = (s0 > 1e-9 * s0.max()) & (det > 1e-9 * s0 ** 3 * sigma ** 4)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(ok, 1.0 / det, np.nan)
     out = np.empty(np.shape(values), dtype=float)
     for k, v in enumerate(values):
         wv = w * np.where(w > 0, v, 0.0)
         b0 = _smooth(wv, sigma)
         bx = _smooth(wv * x, sigma) - x * b0
         by = _smooth(wv * y, sigma) - y * b0
-        coef = np.linalg.solve(A, np.stack([b0, bx, by], -1)[..., None])[..., 0, 0]
-        out[k] = np.where(ok, coef, np.nan)
+        out[k] = (c0 * b0 + c1 * bx + c2 * by) * r
     return out
 
 
 def pool_rates(rates: np.ndarray, valid: np.ndarray, sigma: float,
-               k: float = OUTLIER_SD) -> tuple[np.ndarray, np.ndarray]:
-    """The rates pooled over a Gaussian support, the outliers keeping their own.
+               k: float = OUTLIER_SD, weights: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """The rates pooled over a bell-shaped support, the outliers keeping their own.
 
     A first local linear fit over the valid pixels; the residuals' local spread (their
     root mean square over the same support); a pixel with any rate further than ``k``
@@ -133,6 +194,8 @@ def pool_rates(rates: np.ndarray, valid: np.ndarray, sigma: float,
         The support's standard deviation, pixels.
     k : float
         Outlier threshold in local standard deviations.
+    weights : ndarray, shape (H, W), optional
+        Sample weights of the fits (default 1 on the valid pixels).
 
     Returns
     -------
@@ -142,7 +205,8 @@ def pool_rates(rates: np.ndarray, valid: np.ndarray, sigma: float,
         Where the pooled rates were used.
     """
     valid = valid & np.isfinite(rates).all(0)
-    w = valid.astype(float)
+    base = np.ones(valid.shape) if weights is None else np.asarray(weights, dtype=float)
+    w = np.where(valid, base, 0.0)
     fit = local_linear_fit(rates, w, sigma)
     with np.errstate(invalid="ignore", divide="ignore"):
         res = np.where(valid, rates - fit, 0.0)
@@ -150,7 +214,8 @@ def pool_rates(rates: np.ndarray, valid: np.ndarray, sigma: float,
                          / _smooth(w, sigma))
         outlier = (np.abs(res) > k * spread).any(0)
     keep = valid & ~outlier
-    fit = local_linear_fit(rates, keep.astype(float), sigma)
+    if outlier.any():
+        fit = local_linear_fit(rates, np.where(keep, w, 0.0), sigma)
     pooled = keep & np.isfinite(fit).all(0)
     out = np.where(pooled, fit, np.where(valid, rates, np.nan))
     return out, pooled

@@ -9,7 +9,7 @@
 4. The plan (:func:`plan_run`): the steps (one for an ``.npz``; every K-th frame whose
    window fits for a map series), each step's window of frames (the strategy's reach,
    from :func:`gridflow.estimator.temporal_reach`), the row bands (the strategy's halo,
-   from :func:`gridflow.estimator.window_halo`) that fit the memory budget.
+   from :func:`gridflow.estimator.band_halo`) that fit the memory budget.
 5. Each (step, band) not done yet is a task (:func:`run_step`): read its rows of its
    frames, estimate, write into the sink; in this process, on Dask's threads, or on a
    ``dask.distributed`` cluster (``connect``).
@@ -338,10 +338,8 @@ def _steps(source, strategy, o: RunOptions, sink) -> tuple[tuple, tuple]:
         return (k,), ((max(0, k - reach), min(T, k + reach + 1)),)
     lo, hi = reach, T - 1 - reach
     if hi < lo:
-        radius = strategy.settings.get("temporal_radius")
         raise UsageError(f"{source.path}: {T} frames; a step needs {2 * reach + 1} (its "
-                         f"temporal window {2 if radius is None else radius} and the filters "
-                         "either side)")
+                         f"temporal window and the filters either side: --temporal-radius)")
     every = 1 if o.every is None else o.every
     first = lo if o.first is None else int(o.first)
     last = hi if o.last is None else int(o.last)
@@ -437,8 +435,8 @@ def estimate_step(plan: Plan, i: int, b: int, progress=None) -> tuple[dict, int]
     stamp = src.stamp(lo, hi)
     H, W = src.shape[3:]
     r0, r1 = plan.bands[b]
-    halo = plan.halo
-    if len(plan.bands) > 1 and (r1 <= halo or r0 >= H - halo):
+    halo, border = plan.halo, plan.strategy.border or 0
+    if len(plan.bands) > 1 and (r1 <= border or r0 >= H - border):
         # a band within the image's border: no pixel there has a whole window
         names = plan.strategy.quantities(src.shape)
         nan = {m: Estimate({q: np.full((r1 - r0, W), np.nan) for q in qs}, m,
@@ -645,7 +643,7 @@ def _check_fits(plan: Plan) -> None:
     (the estimator's own rule, :func:`gridflow.estimator.window_halo`)."""
     from gridflow.estimator import InputError
 
-    halo = plan.strategy.halo
+    halo = plan.strategy.border
     H, W = plan.source.shape[3:]
     if halo is not None and (H <= 2 * halo or W <= 2 * halo):
         s = plan.strategy.estimator_settings

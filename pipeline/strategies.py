@@ -6,8 +6,9 @@ care which ran.
 A strategy states what the planner needs without re-deriving the estimator's rules: the
 frames either side of a step it reads (:attr:`reach`, from
 :func:`gridflow.estimator.temporal_reach`), the rows either side of a row band
-(:attr:`halo`, from :func:`gridflow.estimator.window_halo`; None where only whole images
-can be estimated) and the maps it writes (:meth:`quantities`).
+(:attr:`halo`, from :func:`gridflow.estimator.band_halo`; None where only whole images
+can be estimated), the maps' border without a whole window (:attr:`border`, from
+:func:`gridflow.estimator.window_halo`) and the maps it writes (:meth:`quantities`).
 """
 
 from __future__ import annotations
@@ -58,6 +59,12 @@ class SinglePass:
 
     @property
     def halo(self) -> int:
+        from gridflow.estimator import band_halo
+
+        return band_halo(self.estimator_settings)
+
+    @property
+    def border(self) -> int:
         from gridflow.estimator import window_halo
 
         return window_halo(self.estimator_settings)
@@ -111,6 +118,7 @@ class Refocus:
     models = ("bcc",)
     reach = 0
     halo = None           # the choice, the fill and the median reach across the image
+    border = None
 
     def quantities(self, shape) -> dict[str, list[str]]:
         return {"bcc": ["disparity", "Z", "model_error", "confidence", "shear", "filled"]}

@@ -29,22 +29,33 @@ def test_truth_mask_matches_the_image(leaf):
 
 
 def test_affine_model_measures_the_leafs_growth(leaf):
-    """Over the interior (the window on the leaf), full model, sigma 5: measured median
-    relative U_Z error 0.083 (affine) against 0.81 (translation), median growth 4.61e-3
-    for a true 4e-3 (15 %).  Asked: affine U_Z below 3x its measured error, translation
-    above 0.5, the median growth within 3x the measured deviation (45 %)."""
+    """Over the interior (the window on the leaf), full model, sigma 5, each pixel solved
+    alone (growth_support=0): measured median relative U_Z error 0.083 (affine) against
+    0.81 (translation), median growth 4.61e-3 for a true 4e-3 (15 %) when this test was
+    written (4.79e-3, 20 %, now).  Asked: affine U_Z below 3x its measured error,
+    translation above 0.5, the median growth within 3x the first measured deviation
+    (45 %).
+
+    With the pooled default the U_Z error falls (measured 0.030; asked: the same bound),
+    but the growth does not improve on this leaf of 5 frames and 3 x 3 cameras: the
+    per-pixel tilt rate is biased (Z_y,t 5.5e-3 where the truth is 0) and pooling carries
+    the bias everywhere (median growth 5.69e-3, +42 %; docs/model.md, *Pooled depth
+    rates*); asked: within the same 45 %, so that a worse pooling fails here."""
     data, truth = leaf
     out = {}
-    for motion in ("translation", "affine"):
+    for motion, extra in (("translation", {}), ("affine", {"growth_support": 0}),
+                          ("pooled", {})):
         e = estimate_models(data.volume, data.focal_length, data.camera_spacing,
-                            motion=motion, sigma=5.0, window=21, models=("full",),
-                            ref_frame=SMALL.ref_frame)["full"]
+                            motion="translation" if motion == "translation" else "affine",
+                            sigma=5.0, window=21, models=("full",),
+                            ref_frame=SMALL.ref_frame, **extra)["full"]
         m = truth["interior"] & e.interior
         out[motion] = (np.median(np.abs(e["Uz"][m] - truth["Uz"][m]) / np.abs(truth["Uz"][m])),
                        np.median(e["growth"][m]) if "growth" in e else None)
-    assert out["affine"][0] <= 3 * 0.083
+    assert out["affine"][0] <= 3 * 0.083 and out["pooled"][0] <= 3 * 0.083
     assert out["translation"][0] >= 0.5
     assert abs(out["affine"][1] - 4e-3) <= 0.45 * 4e-3
+    assert abs(out["pooled"][1] - 4e-3) <= 0.45 * 4e-3
 
 
 # --- the leaf as a recording (issue 25) ----------------------------------------------------
@@ -124,7 +135,8 @@ def test_leaf_recording_growth_series_against_its_truth(leaf_recording, tmp_path
 
     out = tmp_path / "maps.zarr"
     assert main(["estimate", str(leaf_recording), "-o", str(out), "--sigma", "5",
-                 "--window", "21", "--motion", "affine", "--no-progress"]) == 0
+                 "--window", "21", "--motion", "affine", "--temporal-radius", "2",
+                 "--no-progress"]) == 0
     table = growth_table(out, leaf_recording)
     assert list(table.frame) == [4, 5, 6, 7]
     assert (table.n_pixels > 3000).all()

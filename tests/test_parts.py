@@ -70,8 +70,10 @@ def test_each_axis_of_a_model_is_one_registered_object():
     assert TRANSLATION.rows_dropped_1d == ("IyDx", "Isy") and not TRANSLATION.needs_time
     assert AFFINE.rows == paper + ("tIx", "tIy", "tIxDx", "tIxDy", "tIyDx", "tIyDy")
     assert AFFINE.outputs == ("Ux", "Uy", "Uz", "growth", "rotation", "Zx_t", "Zy_t",
-                              "Uz_err", "growth_err", "rotation_err")
+                              "Uz_err", "growth_err", "rotation_err", "pooled")
     assert AFFINE.rows_dropped_1d == ("Isy",) and AFFINE.needs_time
+    assert (TRANSLATION.temporal_radius, AFFINE.temporal_radius) == (2, 6)
+    assert AFFINE.pools_rates and not TRANSLATION.pools_rates
     want = {"bcc": ((), (), False),
             "hf": (("I", "tI"), ("a1", "a2"), True),
             "full": (("I", "IDx", "IDy", "tI", "tIDx", "tIDy"),

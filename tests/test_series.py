@@ -23,7 +23,10 @@ from gridflow.generators.recording import GrowthRecording, RecordingParams
 
 ROOT = Path(__file__).resolve().parents[1]
 # a recording is estimated for its growth maps: the affine motion model
-EST = ["--sigma", "2", "--window", "9", "--motion", "affine", "--no-progress"]
+# the temporal window pinned at +-2 frames (the affine default is 6): the series' steps,
+# bands and the rhythm's bias below are derived for it
+EST = ["--sigma", "2", "--window", "9", "--motion", "affine", "--temporal-radius", "2",
+       "--no-progress"]
 
 
 @pytest.fixture(scope="module")
@@ -132,7 +135,7 @@ def test_an_interrupted_series_resumes_to_the_same_store(recording, tmp_path):
     the rest (the steps done are skipped), and the store equals, array for array, that of
     one uninterrupted run."""
 
-    settings = {"sigma": 2.0, "window": 9}
+    settings = {"sigma": 2.0, "window": 9, "temporal_radius": 2}
     whole, parts = tmp_path / "whole.zarr", tmp_path / "parts.zarr"
     run_series(recording, whole, every=2, settings=settings)
     first = run_series(recording, parts, every=2, settings=settings, limit=3)
@@ -156,7 +159,7 @@ def test_row_bands_give_the_whole_steps_maps(recording, tmp_path):
     from gridflow.recording import MapStore
     from gridflow.sources import open_source
 
-    settings = {"sigma": 2.0, "window": 9}
+    settings = {"sigma": 2.0, "window": 9, "temporal_radius": 2}
     whole, banded = tmp_path / "whole.zarr", tmp_path / "banded.zarr"
     run_series(recording, whole, every=5, settings=settings)
     rep = run_series(recording, banded, every=5, settings=settings, band_rows=10)
@@ -187,7 +190,7 @@ def test_an_interrupted_banded_series_resumes_band_by_band(recording, tmp_path):
     banded run's."""
     from gridflow.recording import MapStore
 
-    settings = {"sigma": 2.0, "window": 9}
+    settings = {"sigma": 2.0, "window": 9, "temporal_radius": 2}
     whole, parts = tmp_path / "whole.zarr", tmp_path / "parts.zarr"
     run_series(recording, whole, every=5, settings=settings, band_rows=10)
     run_series(recording, parts, every=5, settings=settings, band_rows=10, limit=10)
@@ -221,7 +224,10 @@ def test_a_step_over_the_memory_budget_runs_in_row_bands(recording, tmp_path, ca
     from gridflow.sources import open_source
 
     rec = open_source(recording)
+    # each pixel solved alone (--growth-support 0): the halo is the window's alone (the
+    # pooled rates' reach would make a band of this 64-px image read all of it)
     halo = 4 + 2                                    # 9 taps; matched5's radius
+    EST = [*globals()["EST"][:-1], "--growth-support", "0", "--no-progress"]
     # a budget that fits a 16-row band but not a whole step (at 64 px a band saves memory
     # only when it is narrow: the model charges a band more per byte of its window)
     budget = (step_memory(rec.shape, 9, 16, halo) + 1024) / 2**30   # 1 KiB: the option's rounding
@@ -283,7 +289,7 @@ def test_a_local_dask_cluster_gives_the_same_store(recording, tmp_path):
     from dask.distributed import LocalCluster
 
 
-    settings = {"sigma": 2.0, "window": 9}
+    settings = {"sigma": 2.0, "window": 9, "temporal_radius": 2}
     local, remote = tmp_path / "local.zarr", tmp_path / "remote.zarr"
     run_series(recording, local, every=3, settings=settings)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
@@ -400,7 +406,7 @@ def test_a_bad_frame_in_the_middle_is_named_and_finished_steps_kept(tmp_path, ca
     out = tmp_path / "maps.zarr"
     run = ["estimate", str(folder), "-o", str(out), "--workers", "1", *EST]
 
-    run_series(folder, out, settings={"sigma": 2.0, "window": 9}, limit=1)
+    run_series(folder, out, settings={"sigma": 2.0, "window": 9, "temporal_radius": 2}, limit=1)
     assert MapStore.open(out).done().tolist() == [True, False, False, False]
     bad = folder / "t009_y1_x2.png"
     good = bad.read_bytes()
@@ -493,7 +499,8 @@ def test_a_series_resumes_after_the_benchmark_changes(recording, tmp_path):
     env = {**__import__("os").environ, "PYTHONPATH": str(tree)}
     code = ("import sys; from gridflow.pipeline import RunOptions, estimate; "
             "r = estimate(sys.argv[1], sys.argv[2], RunOptions(settings={'sigma': 2.0, "
-            "'window': 9, 'motion': 'affine'}, every=8, limit=int(sys.argv[3]) or None)); "
+            "'window': 9, 'motion': 'affine', 'temporal_radius': 2}, every=8, "
+            "limit=int(sys.argv[3]) or None)); "
             "print(r.skipped, r.done, r.steps)")
 
     def run(out, limit):

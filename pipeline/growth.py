@@ -6,6 +6,7 @@ chosen frames and the growth against time as figures.  :func:`growth_report` is 
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -13,7 +14,8 @@ import numpy as np
 
 from gridflow.errors import UsageError
 
-__all__ = ["growth_table", "draw_growth", "growth_report", "GrowthReport"]
+__all__ = ["growth_table", "growth_profiles", "draw_growth", "draw_kymograph",
+           "growth_report", "GrowthReport"]
 
 
 def growth_table(maps, truth=None, *, quantity: str = "growth"):
@@ -73,6 +75,88 @@ def growth_table(maps, truth=None, *, quantity: str = "growth"):
     if not rows:
         raise UsageError(f"{maps}: no step is done yet")
     return pd.DataFrame(rows)
+
+
+def growth_profiles(maps, *, axis: str = "x", quantity: str = "growth"):
+    """The growth profile along the leaf per step: at each position along ``axis`` (image
+    columns for ``"x"``, rows for ``"y"``), the median of ``quantity`` across the other
+    axis over the interior, and the pixels it used.  A grower's kymograph is this table
+    as an image (:func:`draw_kymograph`).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``step, frame, time_s, position_px, median, per_hour, n_pixels``;
+        ``median`` per frame, ``per_hour`` per hour where the store records its frame
+        interval (NaN otherwise).  Positions without interior pixels are left out.
+    """
+    import pandas as pd
+
+    from gridflow.recording import MapStore
+
+    if axis not in ("x", "y"):
+        raise UsageError(f"--axis must be x or y, got {axis!r}")
+    store = MapStore.open(maps)
+    if quantity not in store.quantities:
+        raise UsageError(f"{maps}: holds no {quantity!r} maps (it has "
+                         f"{', '.join(store.quantities)}); growth needs --motion affine")
+    g = store.group
+    frames, done = store.frames(), store.done()
+    interior = np.asarray(g["interior"][:], dtype=bool)
+    fi = store.attrs["gridflow"].get("frame_interval")
+    across = 0 if axis == "x" else 1          # the axis the median runs across
+    rows = []
+    for i in np.flatnonzero(done):
+        m = np.where(interior, np.asarray(g[quantity][i], dtype=np.float64), np.nan)
+        n = np.isfinite(m).sum(axis=across)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)       # all-NaN positions
+            med = np.nanmedian(m, axis=across)
+        for pos in np.flatnonzero(n > 0):
+            rows.append({"step": int(i), "frame": int(frames[i]),
+                         "time_s": float(frames[i] * fi) if fi else np.nan,
+                         "position_px": int(pos), "median": float(med[pos]),
+                         "per_hour": float(med[pos] * 3600.0 / fi) if fi else np.nan,
+                         "n_pixels": int(n[pos])})
+    if not rows:
+        raise UsageError(f"{maps}: no step is done yet")
+    return pd.DataFrame(rows)
+
+
+def draw_kymograph(profiles, path, *, axis: str = "x", title: str = "") -> Path:
+    """The growth profile along the leaf against time as an image (a kymograph), on a
+    colour scale from the 2nd to the 98th percentile (a few pixels where the estimate
+    breaks down do not set it), in % area per hour where the frame interval is known,
+    else per frame."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from gridflow.io import atomic_write
+
+    hourly = profiles["per_hour"].notna().all()
+    col = "per_hour" if hourly else "median"
+    grid = profiles.pivot(index="frame", columns="position_px", values=col) * 100.0
+    v = grid.to_numpy()
+    lo, hi = np.nanpercentile(v, 2), np.nanpercentile(v, 98)
+    times = (profiles.groupby("frame")["time_s"].first() / 3600.0) if hourly else None
+    fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
+    extent = [grid.columns.min() - 0.5, grid.columns.max() + 0.5,
+              (times.iloc[-1] if hourly else grid.index.max()),
+              (times.iloc[0] if hourly else grid.index.min())]
+    im = ax.imshow(v, aspect="auto", extent=extent, vmin=lo, vmax=hi, cmap="viridis",
+                   interpolation="nearest")
+    ax.set_xlabel(f"position along the image {axis}, px")
+    ax.set_ylabel("time, h" if hourly else "frame")
+    fig.colorbar(im, ax=ax, label="growth, % area per " + ("hour" if hourly else "frame")
+                 + " (median across the leaf)")
+    ax.set_title(title or "Growth along the leaf over time", fontsize=10)
+    path = Path(path)
+    with atomic_write(path) as fh:
+        fig.savefig(fh, format="png", dpi=110)
+    plt.close(fig)
+    return path
 
 
 def _check_truth(maps, store, truth, rec, shape, frames) -> None:
@@ -186,19 +270,30 @@ class GrowthReport:
 
 
 def growth_report(maps, truth=None, *, fig_dir="growth", csv=None,
-                  times=None) -> GrowthReport:
+                  times=None, profile_csv=None, axis: str = "x") -> GrowthReport:
     """The growth of the map series ``maps`` per step (:func:`growth_table`, against the
     recording ``truth`` where given), drawn into ``fig_dir`` (:func:`draw_growth`, the maps
     at ``times``) and, with ``csv``, the table written there.  The outputs are checked
     before anything is read or written; a grower reads the median (the mean is moved by
-    the few pixels where the estimate breaks down)."""
+    the few pixels where the estimate breaks down).  The growth profile along the image
+    ``axis`` per step (:func:`growth_profiles`) is drawn as a kymograph
+    (``growth_kymograph.png``) and, with ``profile_csv``, written there."""
     from gridflow.io import atomic_write, check_output
 
     if csv:
         check_output(csv, suffixes=".csv", inputs=[maps], what="--csv")
+    if profile_csv:
+        check_output(profile_csv, suffixes=".csv", inputs=[maps], what="--profile-csv")
     check_output(fig_dir, suffixes=None, inputs=[maps], what="--fig-dir")
     table = growth_table(maps, truth)
+    profiles = growth_profiles(maps, axis=axis)
     written = draw_growth(maps, table, fig_dir, times=times)
+    written.append(draw_kymograph(profiles, Path(fig_dir) / "growth_kymograph.png",
+                                  axis=axis, title=f"Growth along the leaf ({maps})"))
+    if profile_csv:
+        with atomic_write(profile_csv, "w") as fh:
+            profiles.to_csv(fh, index=False, float_format="%.6g")
+        written.append(Path(profile_csv))
     cols = ["frame", "median", "mean", "p10", "p90"] + (["truth", "q_rel"] if truth else [])
     lines = [table[cols].to_string(index=False, float_format=lambda v: f"{v:.3g}")]
     if truth:

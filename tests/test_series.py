@@ -130,6 +130,42 @@ def test_series_growth_follows_the_rhythm(recording, tmp_path, capsys):
     assert "Q_rel(growth) over the steps" in capsys.readouterr().out
 
 
+def test_growth_profile_along_the_leaf_and_its_kymograph(recording, tmp_path, capsys):
+    """gridflow growth --profile-csv: per step and image column, the median growth across
+    the rows over the interior, per frame and per hour from the recording's frame
+    interval; the kymograph drawn beside the maps.  The recording grows evenly, so each
+    step's profile has the step's median growth at every position (to the map's spread),
+    and its median over the positions is the table's median to within that spread."""
+    import pandas as pd
+
+    from gridflow.pipeline import growth_table
+
+    out = tmp_path / "maps.zarr"
+    assert main(["estimate", str(recording), "-o", str(out), "--every", "8", *EST]) == 0
+    prof_csv, figs = tmp_path / "profile.csv", tmp_path / "figs"
+    assert main(["growth", str(out), "--fig-dir", str(figs), "--profile-csv",
+                 str(prof_csv)]) == 0
+    assert (figs / "growth_kymograph.png").stat().st_size > 10_000
+    prof, table = pd.read_csv(prof_csv), growth_table(out)
+    assert list(prof.columns) == ["step", "frame", "time_s", "position_px", "median",
+                                  "per_hour", "n_pixels"]
+    fi = 120.0                                       # the recording's frame interval, s
+    np.testing.assert_allclose(prof["per_hour"], prof["median"] * 3600 / fi, rtol=1e-5)
+    interior = np.flatnonzero(np.asarray(
+        __import__("gridflow.recording", fromlist=["MapStore"]).MapStore.open(out)
+        .group["interior"][:]).any(0))
+    for _, row in table.iterrows():
+        p = prof[prof["frame"] == row["frame"]]
+        assert list(p["position_px"]) == list(interior)
+        spread = row["p90"] - row["p10"]
+        assert abs(p["median"].median() - row["median"]) < spread / 2
+    # an output inside the input is refused, nothing written
+    assert main(["growth", str(out), "--fig-dir", str(figs), "--profile-csv",
+                 str(out / "p.csv")]) == 2
+    assert not (out / "p.csv").exists()
+    capsys.readouterr()
+
+
 def test_an_interrupted_series_resumes_to_the_same_store(recording, tmp_path):
     """A run stopped after 3 steps, then the same command again: the second run does only
     the rest (the steps done are skipped), and the store equals, array for array, that of

@@ -37,7 +37,8 @@ def cmd_growth(a) -> int:
     from gridflow.pipeline import growth_report
 
     return print_lines(growth_report(a.maps, a.truth, fig_dir=a.fig_dir, csv=a.csv,
-                                     times=a.times).lines)
+                                     times=a.times, profile_csv=a.profile_csv,
+                                     axis=a.axis).lines)
 
 
 def _add_record(sub) -> None:
@@ -117,8 +118,15 @@ def _add_growth(sub) -> None:
                    "frame (gridflow record, record-leaf): Q_rel per step")
     p.add_argument("--times", type=int, nargs="+", metavar="FRAME",
                    help="frames whose growth maps to draw (default six spread over the run)")
-    p.add_argument("--fig-dir", default="growth", help="where growth_maps.png and "
-                   "growth_series.png go (default ./growth)")
+    p.add_argument("--fig-dir", default="growth", help="where growth_maps.png, "
+                   "growth_series.png and growth_kymograph.png go (default ./growth)")
+    p.add_argument("--axis", choices=("x", "y"), default="x",
+                   help="the leaf's axis in the image, for the growth profile along it "
+                        "(the kymograph; default x: image columns)")
+    p.add_argument("--profile-csv", metavar="CSV",
+                   help="also write the growth profile along --axis per step (CSV: step, "
+                        "frame, time_s (s), position_px, median (per frame), per_hour, "
+                        "n_pixels)")
     p.add_argument("--csv", help="also write the per-step table (CSV: step, frame, time_s "
                                  "(s), mean, median, p10, p90 (growth per frame over the "
                                  "interior), n_pixels; with --truth also truth, q_rel)")

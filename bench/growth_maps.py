@@ -16,7 +16,9 @@ flow of the centre camera (OpenCV's Farneback and scikit-image's iterative Lucas
 between frames k-6 and k+6, the frames gridflow's window spans, the divergence averaged
 over gridflow's window, a Gaussian of 16 px), the plant labs' method.  Scores over the estimate's interior: the
 per-pixel median relative error, and the growth profile along the leaf (the median over
-rows per column) against the truth's: correlation and slope.
+rows per column) against the truth's: correlation and slope; for gridflow, how its
+``growth_sd`` describes the errors (the fractions within one and two sd, and their rank
+correlation).
 """
 
 from __future__ import annotations
@@ -79,6 +81,19 @@ def score(growth: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> dict:
             "coverage": float(ok.sum() / mask.sum())}
 
 
+def uncertainty(growth, sd, truth, mask) -> dict:
+    """How the estimate's own standard deviation ``sd`` (``growth_sd``) describes its
+    errors: the fractions of pixels within one and two ``sd`` of the truth (68 % and 95 %
+    for a calibrated Gaussian one) and the rank correlation of ``sd`` with the error."""
+    from scipy.stats import spearmanr
+
+    ok = mask & np.isfinite(growth) & np.isfinite(sd)
+    err = np.abs(growth - truth)[ok]
+    return {"within_1sd": float(np.mean(err <= sd[ok])),
+            "within_2sd": float(np.mean(err <= 2 * sd[ok])),
+            "rank_corr_sd_error": float(spearmanr(sd[ok], err)[0])}
+
+
 def divergence_2d(flow: dict, sigma: float = 16.0) -> np.ndarray:
     """``d(flow_x)/dx + d(flow_y)/dy`` (central differences) averaged over a Gaussian of
     ``sigma`` px (gridflow's window), per frame: what a 2-D tool reports as growth."""
@@ -117,7 +132,8 @@ def run(seeds=(0, 1), noise: float = 0.003, leaves=tuple(LEAVES), progress=print
                 secs = time.perf_counter() - t0
                 mask = e.interior
                 rows.append(dict(leaf=leaf, seed=seed, method=name, seconds=secs,
-                                 **score(e["growth"], truth, mask)))
+                                 **score(e["growth"], truth, mask),
+                                 **uncertainty(e["growth"], e["growth_sd"], truth, mask)))
             for name, fn in peers.items():
                 t0 = time.perf_counter()
                 # the frames gridflow's window spans (k +- 6), the divergence over its
@@ -138,13 +154,20 @@ def table(rows) -> str:
 
     df = pd.DataFrame(rows)
     out = ["| leaf | method | per-pixel median relative error (range over seeds) | "
-           "profile correlation | profile slope | s per estimate |",
-           "|---|---|---|---|---|---|"]
+           "profile correlation | profile slope | within 1 / 2 growth_sd (range) | "
+           "rank corr. growth_sd vs error | s per estimate |",
+           "|---|---|---|---|---|---|---|---|"]
     for (leaf, method), g in df.groupby(["leaf", "method"], sort=False):
+        if g.within_1sd.notna().all():
+            cal = (f"{g.within_1sd.mean():.2f} ({g.within_1sd.min():.2f}-"
+                   f"{g.within_1sd.max():.2f}) / {g.within_2sd.mean():.2f}")
+            rank = f"{g.rank_corr_sd_error.mean():.2f}"
+        else:
+            cal = rank = "-"
         out.append(f"| {leaf} | {method} | {g.median_rel_error.mean():.3f} "
                    f"({g.median_rel_error.min():.3f}-{g.median_rel_error.max():.3f}) | "
-                   f"{g.profile_corr.mean():.3f} | {g.profile_slope.mean():.2f} | "
-                   f"{g.seconds.mean():.1f} |")
+                   f"{g.profile_corr.mean():.3f} | {g.profile_slope.mean():.2f} | {cal} | "
+                   f"{rank} | {g.seconds.mean():.1f} |")
     return "\n".join(out)
 
 

@@ -345,7 +345,8 @@ def _affine(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, com
 
 def solve_affine(obs: np.ndarray, Z: np.ndarray, Zx: np.ndarray, Zy: np.ndarray,
                  x0: np.ndarray, y0: np.ndarray, f: float,
-                 var_obs: np.ndarray | None = None) -> dict[str, np.ndarray]:
+                 var_obs: np.ndarray | None = None,
+                 sensitivity: bool = False) -> dict[str, np.ndarray]:
     """Solve each pixel's 9 x 9 system ``M theta = o`` of :func:`affine_observations` for
     ``theta = (U, g1, g2)``; then the growth, the rotation about the normal and the
     slopes' rates.
@@ -360,6 +361,9 @@ def solve_affine(obs: np.ndarray, Z: np.ndarray, Zx: np.ndarray, Zy: np.ndarray,
     var_obs : ndarray, shape (N, 9), optional
         The observations' variances; with them, first-order ``Uz_err``, ``growth_err``,
         ``rotation_err`` (correlations left out).
+    sensitivity : bool
+        Also return ``growth_sensitivity`` (shape (N, 9)): the growth's derivative with
+        respect to each observation, ``M^-T c`` for ``growth = c . theta``.
 
     Returns
     -------
@@ -392,6 +396,12 @@ def solve_affine(obs: np.ndarray, Z: np.ndarray, Zx: np.ndarray, Zy: np.ndarray,
             sd = np.sqrt(np.einsum("njq,nj->qn", A * A, var_obs))
             sd[:, ~ok] = np.nan
             out["Uz_err"], out["growth_err"], out["rotation_err"] = sd
+        if sensitivity:
+            c = _rate_coefficients(Zx, Zy)["growth"]
+            A = np.linalg.solve(M.transpose(0, 2, 1),
+                                np.where(ok[:, None], c, 0.0)[..., None])[..., 0]
+            A[~ok] = np.nan
+            out["growth_sensitivity"] = A
     return out
 
 

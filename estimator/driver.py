@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from .backends import TensorPlan, select_backend
 from .disentangle import disentangle
@@ -21,7 +22,7 @@ from .disentangle import solve_affine
 from .filters import FilterPair, get_filter_pair
 from .models import (BRIGHTNESS_MODELS, MODELS, MOTION_MODELS, ZOOM_ROW_SIGNALS, Model,
                      covering_rows, get_model, one_frame_problem, zoom_rows)
-from .pooling import pool_rates, pool_reach, texture_reach, textured_windows
+from .pooling import fit_variance, local_linear_fit, local_spread, pool_rates, pool_reach, texture_reach, textured_windows
 from .result import Estimate
 from .settings import EstimatorSettings, InputError
 from .signals import SignalPlan, signal_plan
@@ -418,11 +419,16 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         Sy, Sx = vol.shape[1:3]
         textured = textured_windows(vol[plan.k_ref, Sy // 2, Sx // 2], s.window // 2)
     for m, kept in pool.items():
-        out[m].update(_pooled(kept, interior, textured, sigma_pool, plan))
+        out[m].update(_pooled(kept, interior, textured, sigma_pool, plan, s.sigma))
+        # a pixel that kept its own rates is the per-pixel solution: its growth_err
+        alone = interior & (out[m]["pooled"] == 0.0)
+        out[m]["growth_sd"][alone] = out[m]["growth_err"][alone]
     for m in models:
         if "pooled" in out[m] and m not in pool:
-            # not pooled (growth_support 0): every interior pixel solved alone
+            # not pooled (growth_support 0): every interior pixel solved alone, whose
+            # first-order growth_err is its standard deviation
             out[m]["pooled"][interior] = 0.0
+            out[m]["growth_sd"][interior] = out[m]["growth_err"][interior]
     used = dict(s.as_dict(), filters_xy=plan.spatial.name, filters_sx=plan.cam_x.name,
                 filters_sy=plan.cam_y.name if plan.cam_y else None,
                 filters_t=plan.time.name if plan.time else None,
@@ -432,8 +438,52 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
             for m in models}
 
 
+def _local_mean(a, w, sigma):
+    from .pooling import _smooth
+
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return _smooth(a, sigma) / _smooth(w, sigma)
+
+
+def _growth_sd(growth, sens, own_rates, valid, fitted, weights, used, sigma,
+               window_sigma):
+    """The pooled growth's standard deviation per pixel (``docs/model.md``, *Pooled depth
+    rates*): the growth map's local scatter about its local linear fit (the noise the
+    pixel's own flow and flow gradient bring, correlations included), plus what the
+    pooled rates' error adds, common to the support and so invisible in that scatter:
+    ``rho s^2`` with ``s`` the local spread of the growth's part that the pixel's own
+    rates make, ``sum_j (dg/dr_j) r_j`` (the rates' errors are correlated and partly
+    cancel in it), and ``rho`` the fit's variance per unit noise variance
+    (:func:`estimator.pooling.fit_variance`) for noise correlated like the window of
+    ``sigma_w`` (a Gaussian of ``sqrt(2) sigma_w``).
+    NaN where the pixel kept its own rates (the caller gives it its ``growth_err``)."""
+    H, W = growth.shape
+    w = (fitted & used & np.isfinite(growth)).astype(float)
+    local = local_spread(np.where(w > 0, growth, 0.0)[None], w, sigma)[0]
+    # the rates' noise is correlated like the window: a Gaussian of sqrt(2) sigma_w,
+    # whose integral is 4 pi sigma_w^2 pixels
+    # the rates' noise as the growth sees it: the growth's part that the pixel's own
+    # rates make (the three rates' errors are correlated, and partly cancel in it), its
+    # residual about the local fit, and that residual's correlation area measured from
+    # the data: a Gaussian of sigma_m leaves 4 pi sigma_m^2 / A of a noise's variance
+    part = np.zeros((H, W))
+    part[valid] = np.sum(sens[:, 6:9] * own_rates.T, axis=1)
+    wf = np.where(fitted & np.isfinite(part), 1.0, 0.0)
+    part = np.where(wf > 0, part, 0.0)
+    res = np.where(wf > 0, part - local_linear_fit(part[None], wf, sigma)[0], 0.0)
+    sm = 2.0 * window_sigma
+    with np.errstate(invalid="ignore", divide="ignore"):
+        smooth = ndimage.gaussian_filter(res, sm) / ndimage.gaussian_filter(wf, sm)
+        smooth = np.where(wf > 0, smooth, 0.0)
+        total = _local_mean(wf * res * res, wf, sigma)
+        area = 4.0 * np.pi * sm * sm * _local_mean(wf * smooth * smooth, wf, sigma) / total
+    common = fit_variance(np.where(fitted, weights, 0.0), sigma, area) * total
+    sd = np.sqrt(local ** 2 + common)
+    return np.where(used, sd, np.nan)
+
+
 def _pooled(kept: np.ndarray, interior: np.ndarray, textured: np.ndarray, sigma: float,
-            plan: Plan) -> dict:
+            plan: Plan, window_sigma: float) -> dict:
     """The affine model's motion with its depth motion and tilt rates pooled
     (:func:`estimator.pooling.pool_rates`) and each pixel's 9 x 9 system solved again
     with them (``docs/model.md``, *Pooled depth rates*).
@@ -450,8 +500,8 @@ def _pooled(kept: np.ndarray, interior: np.ndarray, textured: np.ndarray, sigma:
     # each pixel weighted by the inverse of its v_t's first-order variance: a pixel whose
     # window reaches off the leaf, or sees little texture, counts for little
     weights = np.where(valid & textured, 1.0 / np.where(valid, var_vt, 1.0), 0.0)
-    rates, used = pool_rates(np.stack([zx, zy, obs[6], obs[7], obs[8]]), valid, sigma,
-                             weights=weights)
+    rates, used, spread = pool_rates(np.stack([zx, zy, obs[6], obs[7], obs[8]]), valid,
+                                     sigma, weights=weights)
     zx, zy = rates[0][valid], rates[1][valid]
     H, W = interior.shape
     yy, xx = np.nonzero(valid)
@@ -464,12 +514,15 @@ def _pooled(kept: np.ndarray, interior: np.ndarray, textured: np.ndarray, sigma:
         den = 1.0 + (zx * x0 + zy * y0) * Z / f
         Zx, Zy = zx * Z / den, zy * Z / den
     o = np.concatenate([obs[:6, valid], rates[2:, valid]])
-    res = solve_affine(o, Z, Zx, Zy, x0, y0, f)
+    res = solve_affine(o, Z, Zx, Zy, x0, y0, f, sensitivity=True)
+    sens = res.pop("growth_sensitivity")
     out = {}
     for name, val in res.items():
         a = np.full((H, W), np.nan)
         a[valid] = val
         out[name] = a
+    out["growth_sd"] = _growth_sd(out["growth"], sens, obs[6:9, valid], valid,
+                                  weights > 0, weights, used, sigma, window_sigma)
     flag = np.full((H, W), np.nan)
     flag[interior] = 0.0
     flag[used] = 1.0

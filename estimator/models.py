@@ -165,7 +165,7 @@ TRANSLATION = MotionModel(
 AFFINE = MotionModel(
     "affine", _TRANSLATION_ROWS + ("tIx", "tIy", "tIxDx", "tIxDy", "tIyDx", "tIyDy"),
     ("Ux", "Uy", "Uz", "growth", "rotation", "Zx_t", "Zy_t", "Uz_err", "growth_err",
-     "rotation_err", "pooled"),
+     "rotation_err", "pooled", "growth_sd"),
     # under affine motion the dt part of I_y Δx is a free flow gradient: kept
     rows_dropped_1d=("Isy",),
     # growth is told from depth motion by the disparity's change in time, whose error

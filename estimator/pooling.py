@@ -30,7 +30,7 @@ import numpy as np
 from scipy import ndimage
 
 __all__ = ["POOLED_RATES", "pool_reach", "local_linear_fit", "pool_rates",
-           "textured_windows", "texture_reach"]
+           "textured_windows", "texture_reach", "local_spread", "fit_variance"]
 
 # the per-pixel quantities pooled: the projected slopes and the rates of the disparity
 # and of the projected slopes at a fixed pixel
@@ -116,6 +116,77 @@ def textured_windows(image: np.ndarray, radius: int) -> np.ndarray:
     return low > _BLANK * mean
 
 
+def _coordinates(shape):
+    # coordinates relative to the image centre keep the moments' magnitudes near
+    # sigma^2, whatever the image size
+    H, W = shape
+    return ((np.arange(W, dtype=float) - (W - 1) / 2.0)[None, :],
+            (np.arange(H, dtype=float) - (H - 1) / 2.0)[:, None])
+
+
+def _moments(w, x, y, smooth):
+    """The normal matrix's entries about each pixel p: ``sum K w (x_q - x_p)^i (y_q -
+    y_p)^j`` for ``i + j <= 2`` (``smooth`` applies K)."""
+    m = {k: smooth(w * f) for k, f in
+         (("1", 1.0), ("x", x), ("y", y), ("xx", x * x), ("xy", x * y), ("yy", y * y))}
+    s0 = m["1"]
+    return (s0, m["x"] - x * s0, m["y"] - y * s0,
+            m["xx"] - 2 * x * m["x"] + x * x * s0,
+            m["xy"] - x * m["y"] - y * m["x"] + x * y * s0,
+            m["yy"] - 2 * y * m["y"] + y * y * s0)
+
+
+def _first_inverse_row(w, sigma, x, y):
+    """The cofactors ``c0, c1, c2`` of the first row of the normal matrix ``A = [[s0, sx,
+    sy], [sx, sxx, sxy], [sy, sxy, syy]]`` and ``1 / det A`` (NaN where no plane is
+    determined): the fit's constant term needs only ``A^-1``'s first row."""
+    s0, sx, sy, sxx, sxy, syy = _moments(w, x, y, lambda a: _smooth(a, sigma))
+    c0 = sxx * syy - sxy * sxy
+    c1 = sxy * sy - sx * syy
+    c2 = sx * sxy - sxx * sy
+    det = s0 * c0 + sx * c1 + sy * c2
+    # a plane needs samples within reach, not in one line: s0 above the running sums'
+    # roundoff, and A far from singular
+    ok = (s0 > 1e-9 * s0.max()) & (det > 1e-9 * s0 ** 3 * sigma ** 4)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(ok, 1.0 / det, np.nan)
+    return c0, c1, c2, r
+
+
+def fit_variance(weights: np.ndarray, sigma: float, correlation_area: float) -> np.ndarray:
+    """The variance of :func:`local_linear_fit`'s value per unit variance of the samples'
+    noise, for noise correlated over ``correlation_area`` pixels (its autocorrelation's
+    integral; 1 for white noise).
+
+    The fit's value is ``sum_q l_q v_q`` with the equivalent weights ``l_q = K_q w_q
+    (A^-1 u_q)_0``, ``u_q = (1, x_q - x_p, y_q - y_p)``; for noise whose correlation is
+    short against the support, its variance is ``correlation_area sum_q l_q^2 =
+    correlation_area a^T B a`` with ``a = A^-1 e_0`` and ``B = sum K^2 w^2 u u^T``.  The
+    kernel's square is taken as the same bell at ``sigma / sqrt(2)`` over ``4 pi
+    sigma^2`` (exact for a Gaussian).
+
+    Parameters
+    ----------
+    weights : ndarray, shape (H, W)
+    sigma : float
+    correlation_area : float
+        Pixels.
+
+    Returns
+    -------
+    ndarray, shape (H, W)
+    """
+    w = np.asarray(weights, dtype=float)
+    x, y = _coordinates(w.shape)
+    c0, c1, c2, r = _first_inverse_row(w, sigma, x, y)
+    k2 = 1.0 / (4.0 * np.pi * sigma * sigma)
+    b00, b01, b02, b11, b12, b22 = _moments(w * w, x, y,
+                                            lambda a: k2 * _smooth(a, sigma / np.sqrt(2)))
+    quad = (c0 * c0 * b00 + c1 * c1 * b11 + c2 * c2 * b22
+            + 2 * (c0 * c1 * b01 + c0 * c2 * b02 + c1 * c2 * b12))
+    return correlation_area * quad * r * r
+
+
 def local_linear_fit(values: np.ndarray, weights: np.ndarray, sigma: float) -> np.ndarray:
     """Weighted local linear regression of each map on the pixel coordinates.
 
@@ -138,32 +209,9 @@ def local_linear_fit(values: np.ndarray, weights: np.ndarray, sigma: float) -> n
     -------
     ndarray, shape (K, H, W)
     """
-    H, W = weights.shape
-    # coordinates relative to the image centre keep the moments' magnitudes near
-    # sigma^2, whatever the image size
-    y = (np.arange(H, dtype=float) - (H - 1) / 2.0)[:, None]
-    x = (np.arange(W, dtype=float) - (W - 1) / 2.0)[None, :]
     w = np.asarray(weights, dtype=float)
-    m = {k: _smooth(w * f, sigma) for k, f in
-         (("1", 1.0), ("x", x), ("y", y), ("xx", x * x), ("xy", x * y), ("yy", y * y))}
-    # the moments about each pixel p: sum K w (x_q - x_p)^i (y_q - y_p)^j
-    s0 = m["1"]
-    sx = m["x"] - x * s0
-    sy = m["y"] - y * s0
-    sxx = m["xx"] - 2 * x * m["x"] + x * x * s0
-    sxy = m["xy"] - x * m["y"] - y * m["x"] + x * y * s0
-    syy = m["yy"] - 2 * y * m["y"] + y * y * s0
-    # the fit's constant term needs only the first row of A^-1 (A the symmetric 3 x 3
-    # normal matrix [[s0, sx, sy], [sx, sxx, sxy], [sy, sxy, syy]]): its cofactors
-    c0 = sxx * syy - sxy * sxy
-    c1 = sxy * sy - sx * syy
-    c2 = sx * sxy - sxx * sy
-    det = s0 * c0 + sx * c1 + sy * c2
-    # a plane needs samples within reach, not in one line: s0 above the running sums'
-    # roundoff, and A far from singular
-    ok = (s0 > 1e-9 * s0.max()) & (det > 1e-9 * s0 ** 3 * sigma ** 4)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = np.where(ok, 1.0 / det, np.nan)
+    x, y = _coordinates(w.shape)
+    c0, c1, c2, r = _first_inverse_row(w, sigma, x, y)
     out = np.empty(np.shape(values), dtype=float)
     for k, v in enumerate(values):
         wv = w * np.where(w > 0, v, 0.0)
@@ -203,6 +251,9 @@ def pool_rates(rates: np.ndarray, valid: np.ndarray, sigma: float,
         Pooled at pooled pixels, the pixel's own at outliers, NaN outside ``valid``.
     pooled : ndarray of bool, shape (H, W)
         Where the pooled rates were used.
+    spread : ndarray, shape (K, H, W)
+        The per-pixel rates' local standard deviation about the first fit (the local
+        root mean square of its residuals): their noise where the rates are affine.
     """
     valid = valid & np.isfinite(rates).all(0)
     base = np.ones(valid.shape) if weights is None else np.asarray(weights, dtype=float)
@@ -218,4 +269,15 @@ def pool_rates(rates: np.ndarray, valid: np.ndarray, sigma: float,
         fit = local_linear_fit(rates, np.where(keep, w, 0.0), sigma)
     pooled = keep & np.isfinite(fit).all(0)
     out = np.where(pooled, fit, np.where(valid, rates, np.nan))
-    return out, pooled
+    return out, pooled, spread
+
+
+def local_spread(values: np.ndarray, weights: np.ndarray, sigma: float) -> np.ndarray:
+    """The local standard deviation of each map about its local linear fit
+    (:func:`local_linear_fit`): the weighted root mean square of the residuals over the
+    same support.  Shapes as :func:`local_linear_fit`."""
+    fit = local_linear_fit(values, weights, sigma)
+    w = np.asarray(weights, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        res = np.where(w > 0, values - fit, 0.0)
+        return np.sqrt(np.stack([_smooth(w * r * r, sigma) for r in res]) / _smooth(w, sigma))

@@ -70,7 +70,7 @@ def test_each_axis_of_a_model_is_one_registered_object():
     assert TRANSLATION.rows_dropped_1d == ("IyDx", "Isy") and not TRANSLATION.needs_time
     assert AFFINE.rows == paper + ("tIx", "tIy", "tIxDx", "tIxDy", "tIyDx", "tIyDy")
     assert AFFINE.outputs == ("Ux", "Uy", "Uz", "growth", "rotation", "Zx_t", "Zy_t",
-                              "Uz_err", "growth_err", "rotation_err", "pooled")
+                              "Uz_err", "growth_err", "rotation_err", "pooled", "growth_sd")
     assert AFFINE.rows_dropped_1d == ("Isy",) and AFFINE.needs_time
     assert (TRANSLATION.temporal_radius, AFFINE.temporal_radius) == (2, 6)
     assert AFFINE.pools_rates and not TRANSLATION.pools_rates

@@ -79,7 +79,7 @@ class EstimatorSettings:
         the growth, the rotation about the normal and the slopes' rates of change
         (``docs/model.md``, *Affine motion*).
     growth_support : float or None
-        Affine motion: the standard deviation, pixels, of the Gaussian support over
+        Affine motion: the standard deviation, pixels, of the bell-shaped support over
         which the depth motion and tilt rates are pooled (:mod:`estimator.pooling`);
         default ``6 * sigma`` (96 px at the default sigma); 0 solves each pixel alone.
     """

@@ -158,7 +158,7 @@ def add_estimator_args(p: argparse.ArgumentParser) -> None:
                         "as many as the temporal filter reaches, at most 2; 6 with "
                         "--motion affine)")
     g.add_argument("--growth-support", type=float, default=None, metavar="PX",
-                   help="--motion affine: the Gaussian (sd, px) over which depth motion and "
+                   help="--motion affine: the support (sd, px) over which depth motion and "
                         "tilt rates are pooled (default 6 x --sigma; 0: each pixel alone; "
                         "docs/model.md, Pooled depth rates)")
     g.add_argument("--ref-frame", type=int, default=None,

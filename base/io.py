@@ -52,7 +52,8 @@ def check_output(path, *, suffixes, inputs=(), what: str = "output") -> Path:
     Refused (with :class:`OutputError`, nothing written): a name whose extension is not
     one of ``suffixes`` (the format written), an existing path that is not a regular file
     (a folder, a device such as ``/dev/null``, a FIFO, a symbolic link: the atomic rename
-    would replace it), a path that is one of ``inputs`` (no output replaces an input), and
+    would replace it), a path that is one of ``inputs`` (no output replaces an input) or
+    lies inside an input folder (nor lands inside one), and
     a parent that exists but is not a folder, a name longer than the file system allows,
     and a folder that cannot be written (read-only, or a read-only file system).
 
@@ -77,6 +78,7 @@ def check_output(path, *, suffixes, inputs=(), what: str = "output") -> Path:
         raise OutputError(f"{what} {path}: the name {long[0][:40]}... has "
                           f"{len(os.fsencode(long[0]))} bytes; this file system allows "
                           f"{limit}")
+    _refuse_inside(path, inputs, what)
     if suffixes is None:                    # an output folder
         if path.exists() and not path.is_dir():
             raise OutputError(f"{what} {path}: exists and is not a folder")
@@ -99,6 +101,20 @@ def check_output(path, *, suffixes, inputs=(), what: str = "output") -> Path:
         raise OutputError(f"{what} {path}: {parent} is not a folder")
     _check_writable(parent, path, what)
     return path
+
+
+def _refuse_inside(path: Path, inputs, what: str) -> None:
+    """Refuse an output that would land inside an input folder (a Zarr store, an image
+    folder): writing there changes the input."""
+    target = path.resolve()
+    for inp in inputs:
+        inp = Path(inp)
+        if target == inp.resolve():
+            raise OutputError(f"{what} {path}: is an input of this command ({inp}); "
+                              "choose another output name")
+        if inp.is_dir() and target.is_relative_to(inp.resolve()):
+            raise OutputError(f"{what} {path}: lies inside the input {inp}; no output is "
+                              "written inside an input, choose another place")
 
 
 def _check_writable(folder: Path, path: Path, what: str) -> None:

@@ -159,6 +159,18 @@ def draw_kymograph(profiles, path, *, axis: str = "x", title: str = "") -> Path:
     return path
 
 
+def _made_from(maps) -> list:
+    """The input the map series records, where it still exists (read-only; a store that
+    does not open is left to :func:`growth_table` to refuse)."""
+    from gridflow.recording import MapStore
+
+    try:
+        made = MapStore.open(maps).attrs["gridflow"].get("input")
+    except Exception:       # noqa: BLE001 - growth_table names what is wrong with it
+        return []
+    return [made] if made and Path(made).exists() else []
+
+
 def _check_truth(maps, store, truth, rec, shape, frames) -> None:
     """Refuse a truth that cannot be the maps' input: another image size, too few frames,
     or another recording than the one the store records (its path)."""
@@ -280,11 +292,13 @@ def growth_report(maps, truth=None, *, fig_dir="growth", csv=None,
     (``growth_kymograph.png``) and, with ``profile_csv``, written there."""
     from gridflow.io import atomic_write, check_output
 
+    # the inputs: the maps, the truth, and the recording the maps were made from
+    inputs = [maps] + ([truth] if truth else []) + _made_from(maps)
     if csv:
-        check_output(csv, suffixes=".csv", inputs=[maps], what="--csv")
+        check_output(csv, suffixes=".csv", inputs=inputs, what="--csv")
     if profile_csv:
-        check_output(profile_csv, suffixes=".csv", inputs=[maps], what="--profile-csv")
-    check_output(fig_dir, suffixes=None, inputs=[maps], what="--fig-dir")
+        check_output(profile_csv, suffixes=".csv", inputs=inputs, what="--profile-csv")
+    check_output(fig_dir, suffixes=None, inputs=inputs, what="--fig-dir")
     table = growth_table(maps, truth)
     profiles = growth_profiles(maps, axis=axis)
     written = draw_growth(maps, table, fig_dir, times=times)

@@ -159,11 +159,16 @@ def test_growth_profile_along_the_leaf_and_its_kymograph(recording, tmp_path, ca
         assert list(p["position_px"]) == list(interior)
         spread = row["p90"] - row["p10"]
         assert abs(p["median"].median() - row["median"]) < spread / 2
-    # an output inside the input is refused, nothing written
-    assert main(["growth", str(out), "--fig-dir", str(figs), "--profile-csv",
-                 str(out / "p.csv")]) == 2
-    assert not (out / "p.csv").exists()
+    # an output inside the input, or the input itself, is refused, nothing written
     capsys.readouterr()
+    for args in (["--profile-csv", str(out / "p.csv")], ["--csv", str(out / "t.csv")],
+                 ["--fig-dir", str(out / "figs")], ["--fig-dir", str(out)],
+                 ["--csv", str(recording / "x.csv")]):
+        assert main(["growth", str(out), "--fig-dir", str(figs), *args]
+                    if args[0] != "--fig-dir" else ["growth", str(out), *args]) == 2, args
+        assert "input" in capsys.readouterr().err, args
+    assert not any(p.name in ("p.csv", "t.csv", "figs", "x.csv") for p in out.iterdir())
+    assert not (recording / "x.csv").exists()
 
 
 def test_an_interrupted_series_resumes_to_the_same_store(recording, tmp_path):

@@ -514,7 +514,15 @@ def _pooled(kept: np.ndarray, interior: np.ndarray, textured: np.ndarray, sigma:
         den = 1.0 + (zx * x0 + zy * y0) * Z / f
         Zx, Zy = zx * Z / den, zy * Z / den
     o = np.concatenate([obs[:6, valid], rates[2:, valid]])
-    res = solve_affine(o, Z, Zx, Zy, x0, y0, f, sensitivity=True)
+    # in chunks of the disentangling's size: the solve's many temporaries stay small
+    # enough for the allocator to reuse (as in estimate_models)
+    parts = [solve_affine(o[:, a:a + _DISENTANGLE_PIXELS], Z[a:a + _DISENTANGLE_PIXELS],
+                          Zx[a:a + _DISENTANGLE_PIXELS], Zy[a:a + _DISENTANGLE_PIXELS],
+                          x0[a:a + _DISENTANGLE_PIXELS], y0[a:a + _DISENTANGLE_PIXELS], f,
+                          sensitivity=True)
+             for a in range(0, Z.size, _DISENTANGLE_PIXELS)]
+    res = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else \
+        solve_affine(o, Z, Zx, Zy, x0, y0, f, sensitivity=True)
     sens = res.pop("growth_sensitivity")
     out = {}
     for name, val in res.items():

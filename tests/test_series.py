@@ -151,6 +151,8 @@ def test_growth_profile_along_the_leaf_and_its_kymograph(recording, tmp_path, ca
                                   "per_hour", "n_pixels"]
     fi = 120.0                                       # the recording's frame interval, s
     np.testing.assert_allclose(prof["per_hour"], prof["median"] * 3600 / fi, rtol=1e-5)
+    np.testing.assert_allclose(table["median_per_hour"], table["median"] * 3600 / fi,
+                               rtol=1e-12)
     interior = np.flatnonzero(np.asarray(
         __import__("gridflow.recording", fromlist=["MapStore"]).MapStore.open(out)
         .group["interior"][:]).any(0))

@@ -128,8 +128,9 @@ def _add_growth(sub) -> None:
                         "frame, time_s (s), position_px, median (per frame), per_hour, "
                         "n_pixels)")
     p.add_argument("--csv", help="also write the per-step table (CSV: step, frame, time_s "
-                                 "(s), mean, median, p10, p90 (growth per frame over the "
-                                 "interior), n_pixels; with --truth also truth, q_rel)")
+                                 "(s), mean, median, median_per_hour, p10, p90 (growth per "
+                                 "frame over the interior, the median also per hour), "
+                                 "n_pixels; with --truth also truth, q_rel)")
     p.set_defaults(func=cmd_growth)
 
 

@@ -14,11 +14,11 @@ affine``: the full model, affine motion, pooled depth rates) and, for comparison
 each pixel solved alone (``--growth-support 0``), and by the divergence of a 2-D optical
 flow of the centre camera (OpenCV's Farneback and scikit-image's iterative Lucas-Kanade
 between frames k-6 and k+6, the frames gridflow's window spans, the divergence averaged
-over gridflow's window, a Gaussian of 16 px), the plant labs' method.  Scores over the estimate's interior: the
-per-pixel median relative error, and the growth profile along the leaf (the median over
-rows per column) against the truth's: correlation and slope; for gridflow, how its
-``growth_sd`` describes the errors (the fractions within one and two sd, and their rank
-correlation).
+over gridflow's window, a Gaussian of 16 px), the plant labs' method. Scores over the
+estimate's interior: the per-pixel median relative error, and the growth profile along
+the leaf (the median over rows per column) against the truth's: correlation and slope;
+for gridflow, how its ``growth_sd`` describes the errors (the fractions within one and
+two sd, and their rank correlation).
 """
 
 from __future__ import annotations

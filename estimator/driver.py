@@ -17,12 +17,12 @@ import numpy as np
 from scipy import ndimage
 
 from .backends import TensorPlan, select_backend
-from .disentangle import disentangle
-from .disentangle import solve_affine
+from .disentangle import disentangle, solve_affine
 from .filters import FilterPair, get_filter_pair
 from .models import (BRIGHTNESS_MODELS, MODELS, MOTION_MODELS, ZOOM_ROW_SIGNALS, Model,
                      covering_rows, get_model, one_frame_problem, zoom_rows)
-from .pooling import fit_variance, local_linear_fit, local_spread, pool_rates, pool_reach, texture_reach, textured_windows
+from .pooling import (fit_variance, local_linear_fit, local_mean, local_spread, pool_rates,
+                      pool_reach, texture_reach, textured_windows)
 from .result import Estimate
 from .settings import EstimatorSettings, InputError
 from .signals import SignalPlan, signal_plan
@@ -438,13 +438,6 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
             for m in models}
 
 
-def _local_mean(a, w, sigma):
-    from .pooling import _smooth
-
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return _smooth(a, sigma) / _smooth(w, sigma)
-
-
 def _growth_sd(growth, sens, own_rates, valid, fitted, weights, used, sigma,
                window_sigma):
     """The pooled growth's standard deviation per pixel (``docs/model.md``, *Pooled depth
@@ -452,16 +445,14 @@ def _growth_sd(growth, sens, own_rates, valid, fitted, weights, used, sigma,
     pixel's own flow and flow gradient bring, correlations included), plus what the
     pooled rates' error adds, common to the support and so invisible in that scatter:
     ``rho s^2`` with ``s`` the local spread of the growth's part that the pixel's own
-    rates make, ``sum_j (dg/dr_j) r_j`` (the rates' errors are correlated and partly
-    cancel in it), and ``rho`` the fit's variance per unit noise variance
-    (:func:`estimator.pooling.fit_variance`) for noise correlated like the window of
-    ``sigma_w`` (a Gaussian of ``sqrt(2) sigma_w``).
-    NaN where the pixel kept its own rates (the caller gives it its ``growth_err``)."""
+    rates make, ``sum_j (dg/dr_j) r_j``, about its local fit, and ``rho`` the fit's
+    variance per unit noise variance (:func:`estimator.pooling.fit_variance`) for that
+    residual's correlation area, measured from the data (a Gaussian of ``2 sigma_w``
+    leaves ``4 pi (2 sigma_w)^2 / area`` of a noise's variance).  NaN where the pixel
+    kept its own rates (the caller gives it its ``growth_err``)."""
     H, W = growth.shape
     w = (fitted & used & np.isfinite(growth)).astype(float)
     local = local_spread(np.where(w > 0, growth, 0.0)[None], w, sigma)[0]
-    # the rates' noise is correlated like the window: a Gaussian of sqrt(2) sigma_w,
-    # whose integral is 4 pi sigma_w^2 pixels
     # the rates' noise as the growth sees it: the growth's part that the pixel's own
     # rates make (the three rates' errors are correlated, and partly cancel in it), its
     # residual about the local fit, and that residual's correlation area measured from
@@ -475,8 +466,8 @@ def _growth_sd(growth, sens, own_rates, valid, fitted, weights, used, sigma,
     with np.errstate(invalid="ignore", divide="ignore"):
         smooth = ndimage.gaussian_filter(res, sm) / ndimage.gaussian_filter(wf, sm)
         smooth = np.where(wf > 0, smooth, 0.0)
-        total = _local_mean(wf * res * res, wf, sigma)
-        area = 4.0 * np.pi * sm * sm * _local_mean(wf * smooth * smooth, wf, sigma) / total
+        total = local_mean(wf * res * res, wf, sigma)
+        area = 4.0 * np.pi * sm * sm * local_mean(wf * smooth * smooth, wf, sigma) / total
     common = fit_variance(np.where(fitted, weights, 0.0), sigma, area) * total
     sd = np.sqrt(local ** 2 + common)
     return np.where(used, sd, np.nan)
@@ -493,8 +484,9 @@ def _pooled(kept: np.ndarray, interior: np.ndarray, textured: np.ndarray, sigma:
     texture everywhere (:func:`estimator.pooling.textured_windows`), the only ones fitted.
     Returns the maps that replace the per-pixel solution's (``Ux, Uy, Uz, growth,
     rotation, Zx_t, Zy_t``) and ``pooled``: 1 where the pooled rates were used, 0 where
-    the pixel kept its own, NaN outside the interior.  The error estimates stay those of
-    the per-pixel solution."""
+    the pixel kept its own, NaN outside the interior; ``growth_sd``
+    (:func:`_growth_sd`).  ``Uz_err``, ``growth_err``, ``rotation_err`` stay those of the
+    per-pixel solution."""
     obs, (v, zx, zy, var_vt) = kept[:9], kept[9:]
     valid = interior & np.isfinite(kept).all(0) & (var_vt > 0)
     # each pixel weighted by the inverse of its v_t's first-order variance: a pixel whose

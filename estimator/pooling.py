@@ -11,11 +11,12 @@ A local linear fit of each rate over a bell-shaped support much wider than the e
 window keeps that exactly and averages the noise over the support; the per-pixel 9 x 9
 solve then takes the pooled rates with the pixel's own flow and flow gradient.
 
-Only pixels whose window sees texture everywhere (:func:`textured_windows`: not
-reaching over a leaf's edge onto a blank background) enter the fits, each weighted by
-the inverse of its ``v_t``'s first-order variance.  Where a rate departs from its fit by more than ``k`` times the residuals' local spread
-(a fold, an edge, a second leaf), the pixel keeps its own rates (the per-pixel solution)
-and the fit is redone without it; the map ``pooled`` says which.
+Only pixels whose window sees texture everywhere (:func:`textured_windows`: not reaching
+over a leaf's edge onto a blank background) enter the fits, each weighted by the inverse
+of its ``v_t``'s first-order variance. Where a rate departs from its fit by more than
+``k`` times the residuals' local spread (a fold, an edge, a second leaf), the pixel
+keeps its own rates (the per-pixel solution) and the fit is redone without it; the map
+``pooled`` says which.
 
 Numerics only (scipy.ndimage's box filters); everything a pixel's result reads lies
 within :func:`pool_reach` pixels, so a row band with that many more rows either side
@@ -30,7 +31,8 @@ import numpy as np
 from scipy import ndimage
 
 __all__ = ["POOLED_RATES", "pool_reach", "local_linear_fit", "pool_rates",
-           "textured_windows", "texture_reach", "local_spread", "fit_variance"]
+           "textured_windows", "texture_reach", "local_spread", "fit_variance",
+           "local_mean"]
 
 # the per-pixel quantities pooled: the projected slopes and the rates of the disparity
 # and of the projected slopes at a fixed pixel
@@ -192,9 +194,9 @@ def local_linear_fit(values: np.ndarray, weights: np.ndarray, sigma: float) -> n
 
     At each pixel ``p`` the fit minimises ``sum_q K(q - p) w_q (v_q - a - b (x_q - x_p) -
     c (y_q - y_p))^2`` with ``K`` a bell of standard deviation ``sigma`` (three box
-    filters, radius about 3 ``sigma``) and returns ``a``: exact for values affine in ``x, y``, and a weighted
-    average elsewhere.  Where the weights do not determine a plane (fewer than three
-    weighted pixels in line), NaN.
+    filters, radius about 3 ``sigma``) and returns ``a``: exact for values affine in
+    ``x, y``, and a weighted average elsewhere.  Where the weights do not determine a
+    plane (fewer than three weighted pixels in line), NaN.
 
     Parameters
     ----------
@@ -270,6 +272,13 @@ def pool_rates(rates: np.ndarray, valid: np.ndarray, sigma: float,
     pooled = keep & np.isfinite(fit).all(0)
     out = np.where(pooled, fit, np.where(valid, rates, np.nan))
     return out, pooled, spread
+
+
+def local_mean(values: np.ndarray, weights: np.ndarray, sigma: float) -> np.ndarray:
+    """The weighted local mean of ``values`` (already multiplied by ``weights``, shape
+    (H, W)) over the support: ``sum K v / sum K w``."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return _smooth(values, sigma) / _smooth(weights, sigma)
 
 
 def local_spread(values: np.ndarray, weights: np.ndarray, sigma: float) -> np.ndarray:

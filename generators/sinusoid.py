@@ -17,8 +17,8 @@ unit time (right-handed in the camera frame).  An uneven growth ``growth_x`` add
 displacement along the plane first: ``M`` is replaced by ``M + t growth_x Xm^2 / 2 e1``,
 whose surface divergence is ``growth_x Xm`` (the growth of a leaf that grows faster at
 its base than at its tip); the ray cast finds the mapped plane's coordinate
-``Xm' = Xm + t growth_x Xm^2 / 2`` and inverts it in closed form.  Texture and brightness change are
-functions of the material coordinates (Eq. 8, 11)::
+``Xm' = Xm + t growth_x Xm^2 / 2`` and inverts it in closed form.  Texture and
+brightness change are functions of the material coordinates (Eq. 8, 11)::
 
     I = T(Xm, Ym) * exp((a1 + a1x Xm + a1y Ym) t + (a2 + a2x Xm + a2y Ym) t^2)
 

@@ -78,10 +78,10 @@ def check_output(path, *, suffixes, inputs=(), what: str = "output") -> Path:
         raise OutputError(f"{what} {path}: the name {long[0][:40]}... has "
                           f"{len(os.fsencode(long[0]))} bytes; this file system allows "
                           f"{limit}")
-    _refuse_inside(path, inputs, what)
     if suffixes is None:                    # an output folder
         if path.exists() and not path.is_dir():
             raise OutputError(f"{what} {path}: exists and is not a folder")
+        _refuse_inside(path, inputs, what)
         _check_writable(path if path.is_dir() else path.parent, path, what)
         return path
     suffixes = (suffixes,) if isinstance(suffixes, str) else tuple(suffixes)
@@ -96,6 +96,7 @@ def check_output(path, *, suffixes, inputs=(), what: str = "output") -> Path:
         if _same_file(path, inp) or path.resolve() == inp.resolve():
             raise OutputError(f"{what} {path}: is an input of this command ({inp}); "
                               "choose another output name")
+    _refuse_inside(path, inputs, what)
     parent = _existing_ancestor(path.parent)
     if not parent.is_dir():
         raise OutputError(f"{what} {path}: {parent} is not a folder")
@@ -110,11 +111,12 @@ def _refuse_inside(path: Path, inputs, what: str) -> None:
     for inp in inputs:
         inp = Path(inp)
         if target == inp.resolve():
-            raise OutputError(f"{what} {path}: is an input of this command ({inp}); "
+            raise OutputError(f"{what} {path}: is the input of this command ({inp}); "
                               "choose another output name")
         if inp.is_dir() and target.is_relative_to(inp.resolve()):
-            raise OutputError(f"{what} {path}: lies inside the input {inp}; no output is "
-                              "written inside an input, choose another place")
+            raise OutputError(f"{what} {path}: lies inside {inp}, which is the input of "
+                              "this command; no output is written inside an input, choose "
+                              "another place")
 
 
 def _check_writable(folder: Path, path: Path, what: str) -> None:

@@ -22,7 +22,7 @@ from .filters import FilterPair, get_filter_pair
 from .models import (BRIGHTNESS_MODELS, MODELS, MOTION_MODELS, ZOOM_ROW_SIGNALS, Model,
                      covering_rows, get_model, one_frame_problem, zoom_rows)
 from .pooling import (fit_variance, local_linear_fit, local_mean, local_spread, pool_rates,
-                      pool_reach, texture_reach, textured_windows)
+                      pool_reach, support_radius, texture_reach, textured_windows)
 from .result import Estimate
 from .settings import EstimatorSettings, InputError
 from .signals import SignalPlan, signal_plan
@@ -140,9 +140,18 @@ def band_halo(s: EstimatorSettings) -> int:
     sigma = s.pooling_sigma
     if sigma == 0:
         return window_halo(s)
-    # the pooled fits read pool_reach rows, and the texture test of each pixel they read
-    # its own window
-    return window_halo(s) + pool_reach(sigma) + texture_reach(s.window // 2)
+    # in per-pixel results: the pooled rates read pool_reach (3 R); growth_sd reads 2 R
+    # of pooled results beyond (the growth map's local spread; its correlation-area term:
+    # a fit, a Gaussian of 2 sigma cut at 4 sd, a local mean); each per-pixel result
+    # reads its window of the volume, the texture test a window and 4 px
+    R = support_radius(sigma)
+    reach = pool_reach(sigma) + 2 * R + _sd_gauss_radius(s.sigma)
+    return max(window_halo(s), texture_reach(s.window // 2)) + reach
+
+
+def _sd_gauss_radius(window_sigma: float) -> int:
+    """The radius of _growth_sd's Gaussian of ``2 window_sigma`` (scipy cuts it at 4 sd)."""
+    return int(4.0 * 2.0 * window_sigma + 0.5)
 
 
 def temporal_reach(s: EstimatorSettings) -> int:
@@ -421,7 +430,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     for m, kept in pool.items():
         out[m].update(_pooled(kept, interior, textured, sigma_pool, plan, s.sigma))
         # a pixel that kept its own rates is the per-pixel solution: its growth_err
-        alone = interior & (out[m]["pooled"] == 0.0)
+        alone = out[m]["pooled"] == 0.0
         out[m]["growth_sd"][alone] = out[m]["growth_err"][alone]
     for m in models:
         if "pooled" in out[m] and m not in pool:
@@ -464,7 +473,9 @@ def _growth_sd(growth, sens, own_rates, valid, fitted, weights, used, sigma,
     res = np.where(wf > 0, part - local_linear_fit(part[None], wf, sigma)[0], 0.0)
     sm = 2.0 * window_sigma
     with np.errstate(invalid="ignore", divide="ignore"):
-        smooth = ndimage.gaussian_filter(res, sm) / ndimage.gaussian_filter(wf, sm)
+        # truncate 4.0 (scipy's default) is what band_halo counts (_sd_gauss_radius)
+        smooth = (ndimage.gaussian_filter(res, sm, truncate=4.0)
+                  / ndimage.gaussian_filter(wf, sm, truncate=4.0))
         smooth = np.where(wf > 0, smooth, 0.0)
         total = local_mean(wf * res * res, wf, sigma)
         area = 4.0 * np.pi * sm * sm * local_mean(wf * smooth * smooth, wf, sigma) / total
@@ -488,10 +499,13 @@ def _pooled(kept: np.ndarray, interior: np.ndarray, textured: np.ndarray, sigma:
     (:func:`_growth_sd`).  ``Uz_err``, ``growth_err``, ``rotation_err`` stay those of the
     per-pixel solution."""
     obs, (v, zx, zy, var_vt) = kept[:9], kept[9:]
-    valid = interior & np.isfinite(kept).all(0) & (var_vt > 0)
+    valid = interior & np.isfinite(kept).all(0)
     # each pixel weighted by the inverse of its v_t's first-order variance: a pixel whose
-    # window reaches off the leaf, or sees little texture, counts for little
-    weights = np.where(valid & textured, 1.0 / np.where(valid, var_vt, 1.0), 0.0)
+    # window reaches off the leaf, or sees little texture, counts for little.  A variance
+    # of 0 (a model error that rounds to 0 on exact data) gives no weight, but the pixel
+    # is still solved with the pooled rates
+    fit_me = valid & textured & (var_vt > 0)
+    weights = np.where(fit_me, 1.0 / np.where(fit_me, var_vt, 1.0), 0.0)
     rates, used, spread = pool_rates(np.stack([zx, zy, obs[6], obs[7], obs[8]]), valid,
                                      sigma, weights=weights)
     zx, zy = rates[0][valid], rates[1][valid]
@@ -523,8 +537,8 @@ def _pooled(kept: np.ndarray, interior: np.ndarray, textured: np.ndarray, sigma:
         out[name] = a
     out["growth_sd"] = _growth_sd(out["growth"], sens, obs[6:9, valid], valid,
                                   weights > 0, weights, used, sigma, window_sigma)
-    flag = np.full((H, W), np.nan)
-    flag[interior] = 0.0
+    flag = np.full((H, W), np.nan)       # NaN where the pixel has no estimate at all
+    flag[valid] = 0.0
     flag[used] = 1.0
     out["pooled"] = flag
     return out

@@ -169,9 +169,7 @@ AFFINE = MotionModel(
     # under affine motion the dt part of I_y Δx is a free flow gradient: kept
     rows_dropped_1d=("Isy",),
     # growth is told from depth motion by the disparity's change in time, whose error
-    # falls steeply with the window's length (docs/model.md, *Pooled depth rates*: on
-    # the uneven-growth leaf at sigma_n = 0.003 the per-pixel growth error is 0.23 with
-    # 2 frames either side, 0.07 with 6)
+    # falls steeply with the window's length (docs/model.md, *Pooled depth rates*)
     temporal_radius=6, pools_rates=True)
 # name (what motion= and the CLI take) -> motion model
 MOTION_MODELS: dict[str, MotionModel] = {m.name: m for m in (TRANSLATION, AFFINE)}

@@ -18,9 +18,9 @@ of its ``v_t``'s first-order variance. Where a rate departs from its fit by more
 keeps its own rates (the per-pixel solution) and the fit is redone without it; the map
 ``pooled`` says which.
 
-Numerics only (scipy.ndimage's box filters); everything a pixel's result reads lies
-within :func:`pool_reach` pixels, so a row band with that many more rows either side
-gives the whole image's result.
+Numerics only (scipy.ndimage's box filters); everything a pixel's pooled rates read lies
+within :func:`pool_reach` pixels (``estimator.band_halo`` adds what ``growth_sd`` reads),
+so a row band with that many more rows either side gives the whole image's result.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from scipy import ndimage
 
 __all__ = ["POOLED_RATES", "pool_reach", "local_linear_fit", "pool_rates",
            "textured_windows", "texture_reach", "local_spread", "fit_variance",
-           "local_mean"]
+           "local_mean", "support_radius"]
 
 # the per-pixel quantities pooled: the projected slopes and the rates of the disparity
 # and of the projected slopes at a fixed pixel
@@ -65,11 +65,17 @@ def _radius(sigma: float) -> int:
 
 
 def pool_reach(sigma: float) -> int:
-    """Pixels either side whose per-pixel rates a pixel's pooled rates read: two passes
-    (the fit that finds the outliers, then the fit without them) of the support of
-    standard deviation ``sigma`` (radius about 3 ``sigma``).  0 when ``sigma`` is 0 (no
+    """Pixels either side whose per-pixel rates a pixel's pooled rates read, for a support
+    of standard deviation ``sigma`` and radius ``R`` (about 3 ``sigma``): ``3 R`` (the
+    first fit reads ``R``, a pixel's outlier test its residuals' spread over ``R`` more,
+    the second fit the outlier tests within ``R``).  0 when ``sigma`` is 0 (no
     pooling)."""
-    return 0 if sigma == 0 else 2 * _radius(sigma)
+    return 0 if sigma == 0 else 3 * _radius(sigma)
+
+
+def support_radius(sigma: float) -> int:
+    """The support's radius ``R`` in pixels (0 when ``sigma`` is 0)."""
+    return 0 if sigma == 0 else _radius(sigma)
 
 
 def texture_reach(radius: int) -> int:

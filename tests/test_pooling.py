@@ -111,7 +111,7 @@ def test_pool_rates_keeps_the_outliers_own_values_and_averages_the_rest():
     # 12) = 7e-4 sd; away from the borders (3 sd here: 2e-3)
     inner = (slice(20, 76), slice(20, 76))
     assert np.abs(out[0] - field)[inner][pooled[inner]].max() < 3e-3
-    assert pool_reach(12.0) == 72 and pool_reach(0) == 0
+    assert pool_reach(12.0) == 108 and pool_reach(0) == 0      # 3 R, R = 3 (25 - 1) / 2
 
 
 # --- accuracy on exact renders ------------------------------------------------------------
@@ -199,3 +199,38 @@ def test_growth_sd_describes_the_pooled_errors():
         assert spearmanr(sd, err)[0] > 0.1, seed
         assert 0.2 < np.median(sd) / np.median(err) < 5.0, seed
     assert 0.5 < np.mean(one) < 0.9 and np.mean(two) >= 0.8, (one, two)
+
+
+def test_a_row_band_with_band_halo_rows_gives_the_whole_images_pooled_maps():
+    """A band estimated from only its rows and band_halo rows either side (as the
+    pipeline's row bands are) gives the whole image's maps there, pooled rates and
+    growth_sd included: everything a pixel's result reads lies within band_halo.  With
+    half the halo it does not (the check can fail).  Bound: 1e-8 of each map's largest
+    value (the running sums' rounding when the rows a sum spans change; measured at this
+    commit: up to 6.7e-10)."""
+    from gridflow.estimator import band_halo, EstimatorSettings
+
+    kw = dict(sigma=2.0, window=9, growth_support=4.0, motion="affine")
+    sv = make_sinusoid(height=260, width=48, frames=9, U_Z=0.0, growth=1e-3,
+                       growth_x=-2e-4, noise=0.01, seed=5)
+    cx, cy = sv.principal_point
+    whole = estimate(sv.volume, sv.focal_length, sv.camera_spacing, **kw)
+    h = band_halo(EstimatorSettings(**kw))
+    assert h < 130 - 5                                  # a true band, not the whole image
+    c0, c1 = 125, 135
+
+    def band(halo):
+        a0, a1 = c0 - halo, c1 + halo
+        e = estimate(sv.volume[..., a0:a1, :], sv.focal_length, sv.camera_spacing,
+                     principal_point=(cx, cy - a0), **kw)
+        return {q: e[q][halo:halo + c1 - c0] for q in e.maps}
+
+    got = band(h)
+    for q, ref in whole.maps.items():
+        ref = ref[c0:c1]
+        scale = np.nanmax(np.abs(ref)) if np.isfinite(ref).any() else 1.0
+        np.testing.assert_array_equal(np.isnan(got[q]), np.isnan(ref), err_msg=q)
+        assert np.nanmax(np.abs(got[q] - ref), initial=0.0) <= 1e-8 * scale, q
+    short = band(h // 2)
+    assert np.nanmax(np.abs(short["growth_sd"] - whole["growth_sd"][c0:c1])) > \
+        1e-6 * np.nanmax(whole["growth_sd"][c0:c1])

@@ -479,7 +479,7 @@ def _growth_sd(growth, sens, own_rates, valid, fitted, weights, used, sigma,
         smooth = np.where(wf > 0, smooth, 0.0)
         total = local_mean(wf * res * res, wf, sigma)
         area = 4.0 * np.pi * sm * sm * local_mean(wf * smooth * smooth, wf, sigma) / total
-    common = fit_variance(np.where(fitted, weights, 0.0), sigma, area) * total
+    common = fit_variance(weights, sigma, area) * total
     sd = np.sqrt(local ** 2 + common)
     return np.where(used, sd, np.nan)
 
@@ -521,14 +521,12 @@ def _pooled(kept: np.ndarray, interior: np.ndarray, textured: np.ndarray, sigma:
         Zx, Zy = zx * Z / den, zy * Z / den
     o = np.concatenate([obs[:6, valid], rates[2:, valid]])
     # in chunks of the disentangling's size: the solve's many temporaries stay small
-    # enough for the allocator to reuse (as in estimate_models)
-    parts = [solve_affine(o[:, a:a + _DISENTANGLE_PIXELS], Z[a:a + _DISENTANGLE_PIXELS],
-                          Zx[a:a + _DISENTANGLE_PIXELS], Zy[a:a + _DISENTANGLE_PIXELS],
-                          x0[a:a + _DISENTANGLE_PIXELS], y0[a:a + _DISENTANGLE_PIXELS], f,
-                          sensitivity=True)
-             for a in range(0, Z.size, _DISENTANGLE_PIXELS)]
-    res = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else \
-        solve_affine(o, Z, Zx, Zy, x0, y0, f, sensitivity=True)
+    # enough for the allocator to reuse (as in estimate_models); one call when empty
+    chunks = [slice(a, a + _DISENTANGLE_PIXELS)
+              for a in range(0, Z.size, _DISENTANGLE_PIXELS)] or [slice(None)]
+    parts = [solve_affine(o[:, c], Z[c], Zx[c], Zy[c], x0[c], y0[c], f, sensitivity=True)
+             for c in chunks]
+    res = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     sens = res.pop("growth_sensitivity")
     out = {}
     for name, val in res.items():

@@ -35,13 +35,9 @@ def growth_table(maps, truth=None, *, quantity: str = "growth"):
     import pandas as pd
 
     from gridflow.metrics import q_rel
-    from gridflow.recording import MapStore
     from gridflow.sources import open_source
 
-    store = MapStore.open(maps)
-    if quantity not in store.quantities:
-        raise UsageError(f"{maps}: holds no {quantity!r} maps (it has "
-                         f"{', '.join(store.quantities)}); growth needs --motion affine")
+    store = _open_maps(maps, quantity)
     rec = open_source(truth) if truth is not None else None
     if rec is not None and quantity not in rec.truth_names:
         raise UsageError(f"{truth}: holds no {quantity!r} truth (it has "
@@ -80,6 +76,17 @@ def growth_table(maps, truth=None, *, quantity: str = "growth"):
     return pd.DataFrame(rows)
 
 
+def _open_maps(maps, quantity: str):
+    """The map series ``maps``, refused by name without ``quantity`` maps."""
+    from gridflow.recording import MapStore
+
+    store = MapStore.open(maps)
+    if quantity not in store.quantities:
+        raise UsageError(f"{maps}: holds no {quantity!r} maps (it has "
+                         f"{', '.join(store.quantities)}); growth needs --motion affine")
+    return store
+
+
 def growth_profiles(maps, *, axis: str = "x", quantity: str = "growth"):
     """The growth profile along the leaf per step: at each position along ``axis`` (image
     columns for ``"x"``, rows for ``"y"``), the median of ``quantity`` across the other
@@ -95,14 +102,10 @@ def growth_profiles(maps, *, axis: str = "x", quantity: str = "growth"):
     """
     import pandas as pd
 
-    from gridflow.recording import MapStore
 
     if axis not in ("x", "y"):
         raise UsageError(f"--axis must be x or y, got {axis!r}")
-    store = MapStore.open(maps)
-    if quantity not in store.quantities:
-        raise UsageError(f"{maps}: holds no {quantity!r} maps (it has "
-                         f"{', '.join(store.quantities)}); growth needs --motion affine")
+    store = _open_maps(maps, quantity)
     g = store.group
     frames, done = store.frames(), store.done()
     interior = np.asarray(g["interior"][:], dtype=bool)

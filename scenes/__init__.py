@@ -2,10 +2,12 @@
 its rendering into a camera-grid image folder."""
 
 from .cube import FACE_NAMES, CubeScene, cube_truth, face_interior, scene_sdl, spot_angle
-from .leaf import LEAF_TRUTH_NAMES, LeafRecording, LeafScene, leaf_truth
+from .leaf import (LEAF_TRUTH_NAMES, LeafRecording, LeafScene, UnevenLeafRecording, leaf_truth,
+                   uneven_leaf_truth)
 from .render import (IMAGE_PATTERN, RENDER_CACHE, PovrayMissing, RenderError, povray_binary,
                      render_cube, render_cube_lightfield)
 
-__all__ = ["CubeScene", "LeafScene", "LeafRecording", "LEAF_TRUTH_NAMES", "leaf_truth", "scene_sdl", "cube_truth", "face_interior", "spot_angle", "FACE_NAMES",
+__all__ = ["CubeScene", "LeafScene", "LeafRecording", "UnevenLeafRecording", "LEAF_TRUTH_NAMES",
+           "leaf_truth", "uneven_leaf_truth", "scene_sdl", "cube_truth", "face_interior", "spot_angle", "FACE_NAMES",
            "render_cube", "render_cube_lightfield", "povray_binary", "PovrayMissing", "RenderError",
            "IMAGE_PATTERN", "RENDER_CACHE"]

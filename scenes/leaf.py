@@ -30,7 +30,8 @@ from gridflow.errors import ParameterError
 
 from .cube import POV_FLIP, pov_vec
 
-__all__ = ["LeafScene", "LeafRecording", "leaf_truth", "leaf_outline", "LEAF_TRUTH_NAMES"]
+__all__ = ["LeafScene", "LeafRecording", "UnevenLeafRecording", "leaf_truth",
+           "uneven_leaf_truth", "leaf_outline", "LEAF_TRUTH_NAMES"]
 
 _SDL_VERSION = "leaf-sdl-1"
 
@@ -308,3 +309,211 @@ class LeafRecording(LeafScene):
 
 
 LEAF_TRUTH_NAMES = ("Z", "Ux", "Uy", "Uz", "growth")
+
+
+# --- a leaf that grows unevenly: fast at its base, slow at its tip (issue 36) -------------
+
+# Gauss-Legendre nodes on [0, 1]: the along-leaf velocity is an integral of a smooth
+# (exponential of linear) integrand, exact to rounding with 16 nodes
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(16)
+_GL_X, _GL_W = 0.5 * (_GL_X + 1.0), 0.5 * _GL_W
+
+
+def _expm1_ratio(x):
+    """``expm1(x) / x``, 1 at 0."""
+    x = np.asarray(x, float)
+    small = np.abs(x) < 1e-12
+    return np.where(small, 1.0 + 0.5 * x, np.expm1(x) / np.where(small, 1.0, x))
+
+
+def _log1p_ratio(q):
+    """``log1p(q) / q``, 1 at 0."""
+    q = np.asarray(q, float)
+    small = np.abs(q) < 1e-12
+    return np.where(small, 1.0 - 0.5 * q, np.log1p(q) / np.where(small, 1.0, q))
+
+
+@dataclass(frozen=True)
+class UnevenLeafRecording(LeafRecording):
+    """The leaf recording growing unevenly, as dicot leaves do: its relative area rate
+    falls linearly along the leaf from ``growth`` at the base to ``tip_growth`` at the tip
+    (per frame, times the day/night rhythm), with truth per frame from the geometry.
+
+    The leaf is a ``mesh2`` whose vertices are material points, moved exactly; its
+    texture is uv-mapped on the material coordinates, so it moves with them.  In the
+    leaf's plane, a material point ``(U, W)`` (``W`` its distance from the base along the
+    axis, ``U`` across, at ``t = 0``) is at
+
+        ``x_u = U exp(c g(W))``,  ``x_w = integral_0^W exp(c g(w)) dw``,
+
+    with ``g(W) = growth + (tip_growth - growth) W / L`` the material rate and
+    ``c = theta(t) / 2``, ``theta`` the rhythm's integral (:meth:`growth_time`).  The
+    local area ratio is ``exp(2 c g(W))``, so each material element grows at exactly
+    ``g(W) theta'(t)``, whatever the frame; its width and length grow alike, and the
+    across-leaf motion shears slightly (a rotation ``-x_u theta' g'/(4 dx_w/dW)`` about
+    the normal, at most 1e-4 per frame at the defaults).  ``x_w`` has a closed form and
+    inverse (:meth:`deform`, :meth:`undeform`); the velocity along the axis is the
+    integral's time derivative, by 16-point Gauss-Legendre quadrature.
+    """
+
+    tip_growth: float = 2e-4          # the material rate at the tip, per frame
+
+    name = "leafuneven"
+
+    def __post_init__(self):
+        super().__post_init__()
+        if not (self.growth > 0 and self.tip_growth > 0):
+            raise ParameterError(f"growth {self.growth} and tip_growth {self.tip_growth} "
+                                 "must be positive (per frame)")
+
+    # the rhythm's integral and its derivative
+    def growth_time(self, t):
+        w = 2 * np.pi / self.period
+        return t + self.rhythm * (1.0 - np.cos(w * t)) / w
+
+    def growth_pace(self, t):
+        return 1.0 + self.rhythm * np.sin(2 * np.pi * t / self.period)
+
+    def growth_rate(self, t) -> float:
+        """The rate at the base, ``growth theta'(t)`` (the tip's is ``tip_growth
+        theta'(t)``)."""
+        return float(self.growth * self.growth_pace(t))
+
+    def material_rate(self, W):
+        """``g(W)``: the relative area rate per unit growth time at the material distance
+        ``W`` (mm) from the base."""
+        return self.growth + (self.tip_growth - self.growth) * np.asarray(W) / self.leaf_length
+
+    def deform(self, U, W, t):
+        """Material ``(U, W)`` to the leaf plane's ``(x_u, x_w)`` at frame ``t`` (mm)."""
+        c = 0.5 * self.growth_time(t)
+        k = (self.tip_growth - self.growth) / self.leaf_length
+        W = np.asarray(W, float)
+        x_w = np.exp(c * self.growth) * W * _expm1_ratio(c * k * W)
+        return np.asarray(U, float) * np.exp(c * self.material_rate(W)), x_w
+
+    def undeform(self, x_u, x_w, t):
+        """The inverse of :meth:`deform`: plane ``(x_u, x_w)`` to material ``(U, W)``."""
+        c = 0.5 * self.growth_time(t)
+        k = (self.tip_growth - self.growth) / self.leaf_length
+        D = np.asarray(x_w, float) * np.exp(-c * self.growth)
+        W = D * _log1p_ratio(c * k * D)
+        return np.asarray(x_u, float) * np.exp(-c * self.material_rate(W)), W
+
+    def plane_velocity(self, x_u, x_w, t):
+        """The velocity ``(v_u, v_w)`` in the leaf's plane (mm per frame) of the material
+        point at ``(x_u, x_w)`` at frame ``t``, and the material ``W`` there."""
+        c = 0.5 * self.growth_time(t)
+        half_pace = 0.5 * self.growth_pace(t)
+        _, W = self.undeform(x_u, x_w, t)
+        v_u = np.asarray(x_u, float) * half_pace * self.material_rate(W)
+        w = np.multiply.outer(W, _GL_X)                      # (..., 16) nodes on [0, W]
+        g = self.material_rate(w)
+        v_w = half_pace * W * ((g * np.exp(c * g)) @ _GL_W)
+        return v_u, v_w, W
+
+    def point(self, x_u, x_w, t):
+        """Model-frame position of the plane point ``(x_u, x_w)`` at frame ``t``,
+        shape (..., 3)."""
+        R = self.rotation()
+        return self.base(t) + np.multiply.outer(x_u, R[:, 0]) + np.multiply.outer(x_w, R[:, 1])
+
+    def sdl(self, k: int, i: int, j: int) -> str:
+        """POV-Ray scene text for frame ``k``, camera ``(i, j)``: the leaf as a ``mesh2``
+        of material points at their frame-``k`` positions, uv-mapped texture."""
+        import vapory as vp
+
+        t = float(k - self.ref_frame)
+        ns, nc = 240, 24                       # along (0.6 mm) and across the leaf
+        s = np.linspace(0.0, 1.0, ns + 1)
+        c = np.linspace(-1.0, 1.0, nc + 1)
+        W = np.repeat(s * self.leaf_length, nc + 1)
+        U = (np.outer(leaf_outline(s) * self.leaf_width, c)).ravel()
+        x_u, x_w = self.deform(U, W, t)
+        P = self.point(x_u, x_w, t) @ POV_FLIP
+        faces = []
+        for a in range(ns):
+            for b in range(nc):
+                p = a * (nc + 1) + b
+                q = p + nc + 1
+                if a > 0:                      # the base's vertices coincide: no triangle
+                    faces.append((p, p + 1, q + 1))
+                if a < ns - 1:                 # nor at the tip
+                    faces.append((p, q + 1, q))
+        vec = lambda rows: ", ".join("<" + ", ".join(f"{x:.9g}" for x in r) + ">"  # noqa: E731
+                                     for r in rows)
+        mesh = ("mesh2 {\n vertex_vectors { %d, %s }\n uv_vectors { %d, %s }\n"
+                " face_indices { %d, %s }\n"
+                " texture { uv_mapping pigment { bozo color_map { [0 rgb 0.05] "
+                "[1 rgb 0.95] } scale %g } finish { ambient %g diffuse %g } }\n}" % (
+                    len(P), vec(P), len(U), vec(np.stack([U, W], axis=1)),
+                    len(faces), vec(faces), self.texture_scale, self.ambient, self.diffuse))
+        cam = self.camera(i, j)
+        camera = vp.Camera("perspective", "location", pov_vec(cam),
+                           "right", [self.width, 0, 0], "up", [0, self.height, 0],
+                           "direction", pov_vec([0.0, 0.0, self.f]))
+        light = vp.LightSource(pov_vec(self.light(k)), "rgb", self.spot_power,
+                               "spotlight", "point_at", pov_vec(self.center(t)),
+                               "radius", self.spot_radius_deg,
+                               "falloff", self.spot_falloff_deg)
+        sdl = vp.Scene(camera, objects=[vp.Background("rgb", 0), light],
+                       global_settings=["assumed_gamma 1.0", "ambient_light rgb 1"])
+        return "#version 3.7;\n" + str(sdl) + "\n" + mesh + "\n"
+
+    def truth_at(self, k: int) -> dict[str, np.ndarray]:
+        """Truth of frame ``k`` at the centre camera, each shape (H, W): ``Z``, ``Ux``,
+        ``Uy``, ``Uz`` on the leaf and ``growth`` on its interior (``margin`` px inside
+        its edge), NaN elsewhere (:func:`uneven_leaf_truth` has more)."""
+        t = uneven_leaf_truth(self, margin=self.margin, frame=k)
+        out = {n: t[n] for n in ("Z", "Ux", "Uy", "Uz")}
+        out["growth"] = np.where(t["interior"], t["growth"], np.nan)
+        return out
+
+
+def uneven_leaf_truth(scene: UnevenLeafRecording, margin: float = 16.0,
+                      frame: int = 0) -> dict[str, np.ndarray]:
+    """Ground truth of the unevenly growing leaf at the centre camera and ``frame``.
+
+    Returns
+    -------
+    dict of str to ndarray, each shape (H, W)
+        ``Z, Zx, Zy, Ux, Uy, Uz, growth, rotation, Zx_t, Zy_t`` (NaN off the leaf),
+        ``W`` (the material distance from the base, mm), ``leaf`` (bool), ``interior``
+        (leaf pixels at least ``margin`` px from its edge).
+    """
+    from scipy.ndimage import distance_transform_edt
+
+    t = float(frame - scene.ref_frame)
+    H, Wd = scene.height, scene.width
+    x = np.arange(Wd) - (Wd - 1) / 2
+    y = np.arange(H) - (H - 1) / 2
+    X, Y = np.meshgrid(x, y)
+    R = scene.rotation()
+    n = R[:, 2]
+    b = scene.base(t)
+    r = np.stack([X / scene.f, Y / scene.f, np.ones_like(X)], axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Z = (b @ n) / (r @ n)
+    P = r * Z[..., None]
+    local = (P - b) @ R                         # (x_u, x_w, 0) in the leaf's plane
+    x_u, x_w = local[..., 0], local[..., 1]
+    U, Wm = scene.undeform(x_u, x_w, t)
+    s = Wm / scene.leaf_length
+    with np.errstate(invalid="ignore"):
+        leaf = (s >= 0) & (s <= 1) & (np.abs(U) <= leaf_outline(s) * scene.leaf_width)
+    leaf &= Z > 0
+    v_u, v_w, _ = scene.plane_velocity(x_u, x_w, t)
+    V = np.array([0.0, 0.0, scene.U_Z]) + v_u[..., None] * R[:, 0] + v_w[..., None] * R[:, 1]
+    pace = scene.growth_pace(t)
+    c = 0.5 * scene.growth_time(t)
+    k = (scene.tip_growth - scene.growth) / scene.leaf_length
+    growth = scene.material_rate(Wm) * pace
+    # the shear of the across-leaf motion: d v_u / d x_w = x_u pace k / (2 dx_w/dW)
+    rotation = -0.25 * x_u * pace * k / np.exp(c * scene.material_rate(Wm))
+    nan = lambda a: np.where(leaf, a, np.nan)  # noqa: E731
+    const = lambda v: nan(np.full((H, Wd), float(v)))  # noqa: E731
+    return {"Z": nan(Z), "Zx": const(-n[0] / n[2]), "Zy": const(-n[1] / n[2]),
+            "Ux": nan(V[..., 0]), "Uy": nan(V[..., 1]), "Uz": nan(V[..., 2]),
+            "growth": nan(growth), "rotation": nan(rotation), "Zx_t": const(0.0),
+            "Zy_t": const(0.0), "W": nan(Wm), "leaf": leaf,
+            "interior": leaf & (distance_transform_edt(leaf) >= margin)}

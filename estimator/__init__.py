@@ -8,7 +8,8 @@ models), :data:`MOTIONS` (motion models), :data:`METHODS`, :data:`COMBINE`,
 :data:`FILTER_NAMES`.  The parts (``docs/architecture.md``): :mod:`.settings`,
 :mod:`.models`, :mod:`.filters`, :mod:`.signals`, :mod:`.tensor`, :mod:`.spectral`,
 :mod:`.nullspace`, :mod:`.disentangle`, :mod:`.backends` (with the numba kernels in
-:mod:`._kernels` and :mod:`._solver`), :mod:`.driver`, :mod:`.lightfield`.
+:mod:`._kernels` and :mod:`._solver`), :mod:`.pooling`, :mod:`.masks`, :mod:`.driver`,
+:mod:`.lightfield`.
 
 The driver's names are imported on first use (PEP 562), so that importing a light
 submodule (``gridflow.estimator.filters``, ``.models``) does not pay for scipy.
@@ -20,20 +21,20 @@ from .result import Estimate
 from .settings import COMBINE, DEFAULTS, METHODS, EstimatorSettings, InputError
 
 __all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
-           "window_halo", "band_halo", "temporal_reach", "MODELS", "MOTIONS", "METHODS", "COMBINE",
+           "window_halo", "band_halo", "temporal_reach", "segment_object", "MODELS", "MOTIONS", "METHODS", "COMBINE",
            "FILTER_NAMES", "DEFAULTS"]
 
-_FROM_DRIVER = {"estimate", "estimate_models", "window_halo", "band_halo",
-                "temporal_reach"}
+_LAZY = {"estimate": "driver", "estimate_models": "driver", "window_halo": "driver",
+         "band_halo": "driver", "temporal_reach": "driver", "segment_object": "masks"}
 
 
 def __getattr__(name):
-    if name in _FROM_DRIVER:
-        from . import driver
+    if name in _LAZY:
+        import importlib
 
-        return getattr(driver, name)
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def __dir__():
-    return sorted(set(globals()) | _FROM_DRIVER)
+    return sorted(set(globals()) | set(_LAZY))

@@ -19,6 +19,7 @@ from scipy import ndimage
 from .backends import TensorPlan, select_backend
 from .disentangle import disentangle, solve_affine
 from .filters import FilterPair, get_filter_pair
+from .masks import MIN_OBJECT_WEIGHT, object_window
 from .models import (BRIGHTNESS_MODELS, MODELS, MOTION_MODELS, ZOOM_ROW_SIGNALS, Model,
                      covering_rows, get_model, one_frame_problem, zoom_rows)
 from .pooling import (fit_variance, local_linear_fit, local_mean, local_spread, pool_rates,
@@ -26,7 +27,7 @@ from .pooling import (fit_variance, local_linear_fit, local_mean, local_spread, 
 from .result import Estimate
 from .settings import EstimatorSettings, InputError
 from .signals import SignalPlan, signal_plan
-from .tensor import gaussian_moment_kernels, zoom_corrected
+from .tensor import gaussian_moment_kernels, scaled, zoom_corrected
 
 __all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
            "window_halo", "band_halo", "temporal_reach"]
@@ -301,7 +302,7 @@ def _effective_samples(w: np.ndarray, spatial: FilterPair, frames: int,
 
 
 def estimate(volume: np.ndarray, focal_length: float, camera_spacing, *, model: str = "full",
-             principal_point=None, **settings) -> Estimate:
+             principal_point=None, mask=None, **settings) -> Estimate:
     """Estimate depth, slopes, 3-D motion and brightness change at the reference camera.
 
     Parameters
@@ -320,6 +321,11 @@ def estimate(volume: np.ndarray, focal_length: float, camera_spacing, *, model: 
         (spatially varying change).  The motion model is the setting ``motion``.
     principal_point : (float, float), optional
         ``(cx, cy)`` in pixels; default the image centre.
+    mask : ndarray of bool, shape (H, W), optional
+        The object's pixels (a leaf) in the reference camera's image at the reference
+        frame: each window then uses only the object's samples (normalized convolution:
+        :func:`object_window`), so pixels near its edge are measured from the object
+        alone, and the maps are NaN off it.  Default: every pixel.
     **settings
         See :class:`EstimatorSettings`.
 
@@ -335,11 +341,12 @@ def estimate(volume: np.ndarray, focal_length: float, camera_spacing, *, model: 
         an image smaller than the window, or bad settings.
     """
     return estimate_models(volume, focal_length, camera_spacing, models=(model,),
-                           principal_point=principal_point, **settings)[model]
+                           principal_point=principal_point, mask=mask, **settings)[model]
 
 
 def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
-                    models=MODELS, principal_point=None, **settings) -> dict[str, Estimate]:
+                    models=MODELS, principal_point=None, mask=None,
+                    **settings) -> dict[str, Estimate]:
     """Run several models on one volume, sharing the structure tensor.
 
     The tensor of the largest model contains the smaller ones as sub-blocks, so it is
@@ -349,6 +356,13 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     models = tuple(models)
     backend = select_backend(s.method, np.shape(volume))
     plan = _plan(volume, focal_length, camera_spacing, principal_point, s, models, backend)
+    shape_hw = tuple(np.shape(volume)[-2:])
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != shape_hw or not (mask.dtype == bool or np.isin(mask, (0, 1)).all()):
+            raise InputError(f"mask must be an image of 0/1 or booleans of the volume's "
+                             f"shape {shape_hw}, got {mask.dtype} of shape {mask.shape}")
+        mask = mask.astype(bool)
     mdl: dict[str, Model] = {m: get_model(m, plan.grid_dims, plan.static, s.motion)
                              for m in models}
     rows = covering_rows(mdl.values())
@@ -371,6 +385,10 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
 
     interior = np.zeros((H, W), dtype=bool)
     interior[halo:H - halo, halo:W - halo] = True
+    masked = object_window(mask, tplan.kernels[0], plan.spatial.radius) if mask is not None \
+        else None
+    if masked is not None:
+        interior &= masked[2]
 
     def nan_border(names):
         # the interior is written band by band below; only the border needs its NaN.  One
@@ -396,10 +414,21 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     for r0 in range(halo, H - halo, band):
         r1 = min(r0 + band, H - halo)
         signals = backend.signals(vol, splan, slice(r0 - halo, r1 + halo))
+        if masked is not None:
+            # normalized convolution: only the object's samples enter the window's sums
+            m = masked[0][r0 - halo:r1 + halo]
+            signals = {k: v * m for k, v in signals.items()}
         J = backend.tensor(signals, tplan)                # the band's interior pixels
         del signals
         if ext != rows:
             J = zoom_corrected(J, rows)
+        n_px = n_eff
+        if masked is not None:
+            # ... and the sums become means over them; the noise averages over the
+            # fraction of the window on the object (docs/model.md, *Masks*)
+            frac = masked[1][r0:r1, halo:W - halo].ravel()
+            J = scaled(J, 1.0 / np.maximum(frac, MIN_OBJECT_WEIGHT))
+            n_px = n_eff * np.maximum(frac, MIN_OBJECT_WEIGHT)
         yy, xx = np.meshgrid(np.arange(r0, r1), cols, indexing="ij")
         x0 = (xx - plan.cx).ravel().astype(float)
         y0 = (yy - plan.cy).ravel().astype(float)
@@ -411,7 +440,8 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
                 keep = {} if m in pool else None
                 res = disentangle(P[px], g[px], mdl[m], x0[px], y0[px], plan.focal_length,
                                   plan.spacing, slant_correction=s.slant_correction,
-                                  combine=s.combine, residual=err[px] / n_eff,
+                                  combine=s.combine,
+                                  residual=err[px] / (n_px if np.ndim(n_px) == 0 else n_px[px]),
                                   pooling_inputs=keep)
                 if keep:
                     pool[m][:, r0 + a:r0 + b, halo:W - halo] = np.concatenate(
@@ -426,7 +456,8 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
                     out[m][name][r0 + a:r0 + b, halo:W - halo] = val.reshape(b - a, cols.size)
     if pool:
         Sy, Sx = vol.shape[1:3]
-        textured = textured_windows(vol[plan.k_ref, Sy // 2, Sx // 2], s.window // 2)
+        textured = textured_windows(vol[plan.k_ref, Sy // 2, Sx // 2], s.window // 2,
+                                    None if masked is None else masked[0])
     for m, kept in pool.items():
         out[m].update(_pooled(kept, interior, textured, sigma_pool, plan, s.sigma))
         # a pixel that kept its own rates is the per-pixel solution: its growth_err
@@ -438,7 +469,11 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
             # first-order growth_err is its standard deviation
             out[m]["pooled"][interior] = 0.0
             out[m]["growth_sd"][interior] = out[m]["growth_err"][interior]
-    used = dict(s.as_dict(), filters_xy=plan.spatial.name, filters_sx=plan.cam_x.name,
+    if masked is not None:
+        for m in models:
+            for a in out[m].values():
+                a[~interior] = np.nan
+    used = dict(s.as_dict(), masked=masked is not None, filters_xy=plan.spatial.name, filters_sx=plan.cam_x.name,
                 filters_sy=plan.cam_y.name if plan.cam_y else None,
                 filters_t=plan.time.name if plan.time else None,
                 temporal_radius=plan.R_t, ref_frame=plan.k_ref, backend=backend.name,

@@ -100,7 +100,8 @@ def _smooth(a: np.ndarray, sigma: float) -> np.ndarray:
 _BLANK = 0.01
 
 
-def textured_windows(image: np.ndarray, radius: int) -> np.ndarray:
+def textured_windows(image: np.ndarray, radius: int, mask: np.ndarray | None = None
+                     ) -> np.ndarray:
     """Pixels whose window (``2 radius + 1`` px square) holds no blank part: the least
     gradient energy in it (smoothed over 1 px) is at least 1/100 of its mean.
 
@@ -110,6 +111,8 @@ def textured_windows(image: np.ndarray, radius: int) -> np.ndarray:
         The reference camera's image at the reference frame.
     radius : int
         The estimator's window radius, px.
+    mask : ndarray of bool, shape (H, W), optional
+        The pixels a window uses (the object's): only these are looked at.
 
     Returns
     -------
@@ -119,9 +122,16 @@ def textured_windows(image: np.ndarray, radius: int) -> np.ndarray:
     gy, gx = np.gradient(np.asarray(image, dtype=float))
     energy = ndimage.gaussian_filter(gx * gx + gy * gy, 1.0, mode="nearest", truncate=3.0)
     size = 2 * radius + 1
-    low = ndimage.minimum_filter(energy, size=size, mode="nearest")
-    mean = ndimage.uniform_filter(energy, size=size, mode="nearest")
-    return low > _BLANK * mean
+    if mask is None:
+        low = ndimage.minimum_filter(energy, size=size, mode="nearest")
+        mean = ndimage.uniform_filter(energy, size=size, mode="nearest")
+        return low > _BLANK * mean
+    m = np.asarray(mask, dtype=bool)
+    low = ndimage.minimum_filter(np.where(m, energy, np.inf), size=size, mode="nearest")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = (ndimage.uniform_filter(np.where(m, energy, 0.0), size=size, mode="nearest")
+                / ndimage.uniform_filter(m.astype(float), size=size, mode="nearest"))
+    return m & (low > _BLANK * mean)
 
 
 def _coordinates(shape):

@@ -36,7 +36,8 @@ from .models import ROWS, ZOOM_ROW_SIGNALS, ZOOM_ROWS
 _ROW_SIGNALS = {**ROWS, **ZOOM_ROW_SIGNALS}
 
 __all__ = ["gaussian_moment_kernels", "entry_keys", "entry_groups", "structure_tensor",
-           "structure_tensor_reference", "DenseTensor", "PackedTensor", "zoom_corrected"]
+           "structure_tensor_reference", "DenseTensor", "PackedTensor", "zoom_corrected",
+           "scaled"]
 
 
 def gaussian_moment_kernels(sigma: float, window: int) -> np.ndarray:
@@ -237,3 +238,12 @@ def zoom_corrected(J, rows: tuple[str, ...]):
         index[a, b] = index[b, a] = e
         e += 1
     return PackedTensor(planes, index, rows)
+
+
+def scaled(J, factor: np.ndarray):
+    """J with each pixel's matrix times ``factor`` (shape (N,)), of the same kind: the
+    normalisation of a masked window's sums to weighted means (``estimate_models``'s
+    ``mask``)."""
+    if isinstance(J, DenseTensor):
+        return DenseTensor(J.J * factor[:, None, None], J.rows)
+    return PackedTensor(J.planes * factor[None, :], J.index, J.rows)

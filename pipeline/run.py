@@ -87,6 +87,11 @@ class RunOptions:
         Rows per band.
     connect : str, optional
         A ``dask.distributed`` scheduler address.
+    mask : str, optional
+        ``"auto"`` (the object segmented per step from the centre camera's image:
+        :func:`gridflow.estimator.segment_object`) or a mask file (``.npy`` or an image,
+        nonzero on the object, the reference camera's size): windows use only the
+        object's pixels (the single pass only).
     progress : bool
         Messages before long steps and a progress bar, on stderr.
     limit : int, optional
@@ -107,6 +112,7 @@ class RunOptions:
     memory: float | None = None
     band_rows: int | None = None
     connect: str | None = None
+    mask: str | None = None
     progress: bool = False
     limit: int | None = None
 
@@ -238,9 +244,46 @@ def choose_strategy(source, o: RunOptions) -> tuple[object, list[str]]:
         raise UsageError(f"{', '.join(refocus_given)}: refocusing only; {why}, so the "
                          "estimator's single pass runs")
     if refocus:
+        if o.mask is not None:
+            raise UsageError("--mask: the estimator's single pass only; a light field of one "
+                             "frame is refocused (--shears none for the single pass)")
         return _refocus_strategy(source, o, settings, notes)
     models = o.models or (("bcc",) if T == 1 else (DEFAULT_MODEL,))
-    return SinglePass(tuple(models), settings), notes
+    return SinglePass(tuple(models), settings, mask=_load_mask(o.mask, source)), notes
+
+
+def _load_mask(spec, source):
+    """``--mask``: None, ``"auto"``, or the file's mask as booleans of the source's image
+    size; a file that is not one is refused by name."""
+    if spec is None or spec == "auto":
+        return spec
+    from pathlib import Path
+
+    path = Path(spec)
+    H, W = source.shape[3:]
+    if not path.is_file():
+        raise UsageError(f"--mask {spec}: no such file (give 'auto' or a .npy or image file "
+                         f"of {H}x{W} px, nonzero on the object)")
+    try:
+        if path.suffix.lower() == ".npy":
+            m = np.load(path, allow_pickle=False)
+        else:
+            import imageio.v3 as iio
+
+            m = iio.imread(path)
+    except Exception as exc:                               # noqa: BLE001
+        raise UsageError(f"--mask {spec}: cannot be read as a .npy or an image ({exc})") \
+            from None
+    m = np.asarray(m)
+    if m.ndim == 3:                                        # an RGB(A) image: any channel
+        m = m[..., :3].max(axis=-1) if m.shape[-1] in (3, 4) else m
+    if m.shape != (H, W) or not np.issubdtype(m.dtype, np.number) and m.dtype != bool:
+        raise UsageError(f"--mask {spec}: expected {H}x{W} px (the reference camera's "
+                         f"image of {source.path}), got shape {m.shape} ({m.dtype})")
+    mask = m != 0
+    if not mask.any():
+        raise UsageError(f"--mask {spec}: no pixel is on the object (all zero)")
+    return mask
 
 
 def _motion_needs_time(name: str) -> bool:
@@ -445,7 +488,9 @@ def estimate_step(plan: Plan, i: int, b: int, progress=None) -> tuple[dict, int]
     a0, a1 = (max(0, r0 - halo), min(H, r1 + halo)) if len(plan.bands) > 1 else (0, H)
     window = src.read(lo, hi, rows=(a0, a1))
     try:
-        ests = plan.strategy.run(window, src.geometry.for_rows(a0), k - lo, progress)
+        mask = plan.strategy.step_mask(src, k)
+        ests = plan.strategy.run(window, src.geometry.for_rows(a0), k - lo, progress,
+                                 mask=None if mask is None else mask[a0:a1])
     except InputError as exc:
         where = (f"frames {lo}..{hi - 1} (step at frame {k})" if (lo, hi) != (0, src.frames)
                  else "")
@@ -456,6 +501,8 @@ def estimate_step(plan: Plan, i: int, b: int, progress=None) -> tuple[dict, int]
     ests = with_depth(ests, src.meta.get("hci"))
     # the reference frame as the source counts its frames, not the window
     fix = {"ref_frame": k} if isinstance(plan.strategy, SinglePass) else {}
+    if mask is not None:
+        fix["mask"] = plan.strategy.mask if isinstance(plan.strategy.mask, str) else "given"
     return _crop(ests, slice(r0 - a0, r1 - a0), fix), stamp
 
 

@@ -233,7 +233,11 @@ class MapSeriesSink:
 
 
 def _describe(strategy) -> dict:
-    return {"name": strategy.name, **asdict(strategy)}
+    d = {"name": strategy.name, **asdict(strategy)}
+    if isinstance(d.get("mask"), np.ndarray):
+        # a mask file by its content: another mask is another store
+        d["mask"] = "mask sha1 " + hashlib.sha1(np.packbits(d["mask"]).tobytes()).hexdigest()
+    return d
 
 
 def _units(quantities, g) -> dict:

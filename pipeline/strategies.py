@@ -35,10 +35,15 @@ class SinglePass:
     settings : dict
         Estimator settings (:class:`gridflow.estimator.EstimatorSettings`; ``ref_frame``
         is set per step).
+    mask : None, "auto" or ndarray of bool, shape (H, W)
+        The object's pixels, so that windows use only them (``estimate_models``'s
+        ``mask``): one for every step, or ``"auto"``, segmented per step from the centre
+        camera's image at the step's frame (:func:`gridflow.estimator.segment_object`).
     """
 
     models: tuple
     settings: dict = field(default_factory=dict)
+    mask: object = field(default=None, compare=False)
 
     name = "single pass"
 
@@ -83,14 +88,24 @@ class SinglePass:
         return {m: list(get_model(m, dims, shape[0] == 1, self.motion).outputs)
                 + ["model_error"] for m in self.models}
 
+    def step_mask(self, source, frame: int) -> np.ndarray | None:
+        """The mask of the step at ``frame`` of ``source``, whole images (H, W)."""
+        if self.mask is None or not isinstance(self.mask, str):
+            return self.mask
+        from gridflow.estimator import segment_object
+
+        Sy, Sx = source.shape[1:3]
+        return segment_object(source.read(frame, frame + 1)[0, Sy // 2, Sx // 2])
+
     def run(self, window: np.ndarray, geometry: CameraGeometry, ref: int,
-            progress=None) -> dict[str, Estimate]:
-        """Estimate at frame ``ref`` of ``window`` ``(T, Sy, Sx, H, W)``."""
+            progress=None, mask=None) -> dict[str, Estimate]:
+        """Estimate at frame ``ref`` of ``window`` ``(T, Sy, Sx, H, W)``, with ``mask``
+        (the window's rows of :meth:`step_mask`) where given."""
         from gridflow.estimator import estimate_models
 
         return estimate_models(window, geometry.focal_length, geometry.camera_spacing,
                                models=self.models, principal_point=geometry.principal_point,
-                               **{**self.settings, "ref_frame": ref})
+                               mask=mask, **{**self.settings, "ref_frame": ref})
 
 
 @dataclass(frozen=True)
@@ -120,11 +135,16 @@ class Refocus:
     halo = None           # the choice, the fill and the median reach across the image
     border = None
 
+    mask = None
+
     def quantities(self, shape) -> dict[str, list[str]]:
         return {"bcc": ["disparity", "Z", "model_error", "confidence", "shear", "filled"]}
 
+    def step_mask(self, source, frame: int) -> None:
+        return None
+
     def run(self, window: np.ndarray, geometry: CameraGeometry, ref: int,
-            progress=None) -> dict[str, Estimate]:
+            progress=None, mask=None) -> dict[str, Estimate]:
         """Refocus the views of frame ``ref`` of ``window``; ``Z`` from the disparity for
         parallel cameras (:func:`with_depth` replaces it where the source knows better)."""
         from gridflow.estimator.lightfield import estimate_refocused

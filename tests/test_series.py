@@ -188,9 +188,11 @@ def test_an_interrupted_series_resumes_to_the_same_store(recording, tmp_path):
     assert same_arrays(store_arrays(whole), store_arrays(parts))
 
 
-def test_row_bands_give_the_whole_steps_maps(recording, tmp_path):
+@pytest.mark.parametrize("masked", [False, True])
+def test_row_bands_give_the_whole_steps_maps(recording, tmp_path, masked):
     """Steps cut into row bands (--band-rows), each a task reading only its rows and the
-    halo, give the maps of whole steps, to the estimator's own rounding sensitivity.
+    halo, give the maps of whole steps, to the estimator's own rounding sensitivity; with
+    a mask file too (a disc: windows use only its pixels).
 
     The bound is derived from the estimator itself, not fitted: its maps move at the level
     of rounding whenever the rows a computation spans change (its internal ``band_rows``
@@ -204,8 +206,14 @@ def test_row_bands_give_the_whole_steps_maps(recording, tmp_path):
 
     settings = {"sigma": 2.0, "window": 9, "temporal_radius": 2}
     whole, banded = tmp_path / "whole.zarr", tmp_path / "banded.zarr"
-    run_series(recording, whole, every=5, settings=settings)
-    rep = run_series(recording, banded, every=5, settings=settings, band_rows=10)
+    disc = None
+    if masked:
+        yy, xx = np.mgrid[:64, :64]
+        disc = (yy - 30) ** 2 + (xx - 34) ** 2 <= 24 ** 2
+        np.save(tmp_path / "disc.npy", disc)
+    opts = {"mask": str(tmp_path / "disc.npy")} if masked else {}
+    run_series(recording, whole, every=5, settings=settings, **opts)
+    rep = run_series(recording, banded, every=5, settings=settings, band_rows=10, **opts)
     a, b = MapStore.open(whole), MapStore.open(banded)
     assert b.bands() == [(r, min(r + 10, 64)) for r in range(0, 64, 10)]
     assert rep.done == a.done().sum() == 7 and b.band_done().shape == (7, 7)
@@ -214,11 +222,13 @@ def test_row_bands_give_the_whole_steps_maps(recording, tmp_path):
     rec = open_source(recording)
     k, reach = int(a.frames()[0]), a.attrs["gridflow"]["reach"]
     kw = dict(models=("full",), motion="affine", ref_frame=reach, **settings,
-              principal_point=rec.principal_point)
+              principal_point=rec.principal_point, mask=disc)
     w = rec.read(k - reach, k + reach + 1)
     one = estimate_models(w, rec.focal_length, rec.camera_spacing, **kw)["full"]
     other = estimate_models(w, rec.focal_length, rec.camera_spacing, band_rows=7, **kw)["full"]
     m = one.interior
+    if masked:
+        assert m.sum() > 500 and not m[~disc].any()
     for q in a.quantities:
         x, y = a.group[q][0].astype(float), b.group[q][0].astype(float)
         assert np.array_equal(np.isnan(x), np.isnan(y)), q
@@ -653,3 +663,22 @@ def test_growth_of_a_missing_store_says_so(tmp_path, capsys):
     assert main(["growth", str(tmp_path / "nothing.zarr"), "--fig-dir",
                  str(tmp_path / "g")]) == 2
     assert "nothing.zarr: no such folder" in capsys.readouterr().err
+
+
+def test_a_mask_that_cannot_be_used_is_refused_by_name(recording, tmp_path, capsys):
+    """--mask: a missing file, one of another size, an empty one, and a light field that
+    is refocused are refused before anything is written, naming the file and what was
+    expected."""
+    from gridflow.bench.cli import main
+
+    np.save(tmp_path / "small.npy", np.ones((32, 64), bool))
+    np.save(tmp_path / "empty.npy", np.zeros((64, 64), bool))
+    for spec, text in ((tmp_path / "none.npy", "no such file"),
+                       (tmp_path / "small.npy", "expected 64x64 px"),
+                       (tmp_path / "empty.npy", "no pixel is on the object")):
+        out = tmp_path / "maps.zarr"
+        assert main(["estimate", str(recording), "-o", str(out), "--motion", "affine",
+                     "--mask", str(spec), "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert str(spec) in err and text in err, err
+        assert not out.exists()

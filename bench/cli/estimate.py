@@ -27,7 +27,7 @@ def cmd_estimate(a) -> int:
                    shears=None if a.shears is None else shear_range(a.shears),
                    select=a.select, fill=False if a.no_fill else None, median=a.median,
                    workers=a.workers, memory=a.memory, band_rows=a.band_rows,
-                   connect=a.connect, progress=not a.no_progress)
+                   connect=a.connect, mask=a.mask, progress=not a.no_progress)
     return print_lines(estimate(a.input, a.output, o).lines)
 
 
@@ -103,6 +103,14 @@ def _add_estimate(sub) -> None:
     p.add_argument("--no-fill", action="store_true",
                    help="refocusing: leave pixels without an estimate of their own NaN "
                         "(default: filled from their neighbours, marked in 'filled')")
+    p.add_argument("--mask", default=None, metavar="auto|FILE",
+                   help="the object's pixels (a leaf), so that each window uses only them "
+                        "and pixels near its edge are measured (normalized convolution; "
+                        "maps NaN off the object): 'auto' segments it per step from the "
+                        "centre camera's image (Otsu's threshold, the largest part: an "
+                        "object in front of a plain background), or a .npy or image file "
+                        "of the reference camera's size, nonzero on the object (the same "
+                        "for every step). Default: every pixel")
     p.add_argument("--no-progress", action="store_true",
                    help="no messages before long steps and no progress bar")
     p.add_argument("-o", "--output", required=True,

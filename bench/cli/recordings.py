@@ -21,11 +21,13 @@ def cmd_record(a) -> int:
 
 
 def cmd_record_leaf(a) -> int:
-    from gridflow.scenes import LeafRecording
+    from gridflow.scenes import LeafRecording, UnevenLeafRecording
 
     from ..recordings import make_leaf_recording
 
-    scene = LeafRecording(frames=a.frames, width=a.size, height=a.size, grid=(a.grid, a.grid),
+    kind, extra = ((UnevenLeafRecording, {"tip_growth": a.tip_growth})
+                   if a.tip_growth is not None else (LeafRecording, {}))
+    scene = kind(**extra, frames=a.frames, width=a.size, height=a.size, grid=(a.grid, a.grid),
                           growth=a.growth, rhythm=a.rhythm, period=a.period,
                           spot_swing_deg=a.spot_swing, frame_interval=a.frame_interval,
                           margin=a.margin)
@@ -77,7 +79,12 @@ def _add_record_leaf(sub) -> None:
     p.add_argument("--grid", type=positive_int, default=d.grid[0],
                    help=f"cameras per side, odd (default {d.grid[0]})")
     p.add_argument("--growth", type=float, default=d.growth,
-                   help=f"mean relative area rate, per frame (default {d.growth:g})")
+                   help=f"mean relative area rate, per frame (default {d.growth:g}); "
+                        "with --tip-growth, the rate at the leaf's base")
+    p.add_argument("--tip-growth", type=float, metavar="RATE",
+                   help="grow unevenly: the relative area rate falls linearly along the "
+                        "leaf from --growth at its base to this at its tip, per frame "
+                        "(a mesh of material points; default: uniform growth)")
     p.add_argument("--rhythm", type=float, default=d.rhythm,
                    help=f"relative day/night amplitude of the rate, in [0, 1) "
                         f"(default {d.rhythm:g})")

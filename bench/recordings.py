@@ -104,8 +104,10 @@ def make_leaf_recording(output, scene=None, *, cache=RENDER_CACHE,
         source={"scene": "POV-Ray leaf recording", "params": scene.as_dict(),
                 "images": folder.name}, progress=progress,
         what="copying the frames and writing their truth")
+    rate = (f"{scene.growth:g} at the base to {scene.tip_growth:g} at the tip"
+            if hasattr(scene, "tip_growth") else f"{scene.growth:g}")
     return [f"wrote {output}: {T} frames of {size} (the POV-Ray leaf, {folder}: "
-            f"{rendered:.1f} s to render or find), growth {scene.growth:g} per frame x (1 + "
+            f"{rendered:.1f} s to render or find), growth {rate} per frame x (1 + "
             f"{scene.rhythm:g} sin(2 pi t / {scene.period:g})), in {seconds:.1f} s"]
 
 

@@ -27,7 +27,8 @@ readable with ``xarray.open_zarr``::
       time_s (n,)         seconds from the first frame (where the interval is known)
       y (H,), x (W,)      pixel row and column
       <quantity> (time, y, x)  float32, one chunk per step and row band, NaN until written
-      interior (y, x)     bool: pixels free of border effects (one chunk per row band)
+      interior (y, x)     bool: pixels free of the image border's effects (one chunk per
+                          row band; a mask's object shows per step as NaN in the maps)
       stamp (time, band)  int64: the frames each step read, as they were (names, sizes, times)
       done (time, band)   uint8: 1 once every map of that step's row band is written
 

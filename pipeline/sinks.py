@@ -172,7 +172,8 @@ class MapSeriesSink:
             attrs = {"gridflow": {"input": str(Path(source.path).resolve()), "model": m,
                                   "strategy": _describe(plan.strategy),
                                   "settings": getattr(plan.strategy, "settings", {}),
-                                  "reach": plan.reach, "geometry": g.as_dict(),
+                                  "reach": plan.reach, "border": plan.strategy.border,
+                                  "geometry": g.as_dict(),
                                   "focal_length": g.focal_length,
                                   "camera_spacing": list(g.camera_spacing),
                                   "frame_interval": g.frame_interval,
@@ -204,8 +205,18 @@ class MapSeriesSink:
         """Band ``b`` of step ``i``: ``ests`` hold that band's rows only."""
         for m, store in self.stores.items():
             est = ests[m]
-            store.write_band(i, b, {q: est[q] for q in store.quantities}, est.interior,
-                             stamp)
+            interior = est.interior
+            if est.settings.get("masked"):
+                # the series' interior is the same for every step (a step may come
+                # first): free of the image border's effects; each step's mask (its
+                # object) shows as NaN in its maps
+                r0, r1 = store.bands()[b]
+                H, W = store.group["interior"].shape
+                k = store.attrs["gridflow"]["border"]
+                rows = np.arange(r0, r1)[:, None]
+                cols = np.arange(W)[None, :]
+                interior = ((rows >= k) & (rows < H - k) & (cols >= k) & (cols < W - k))
+            store.write_band(i, b, {q: est[q] for q in store.quantities}, interior, stamp)
 
     def done_steps(self) -> int:
         return int(np.min([s.done().sum() for s in self.stores.values()]))

@@ -12,8 +12,10 @@ A folder holds one image per (frame, camera row, camera column) and a ``grid.jso
       "reference_frame": 4,               # optional; default the centre frame
       "principal_point": [127.5, 127.5],  # optional [cx, cy]; default the image centre
       "truth": {"Z": "truth/Z.npy"},      # optional (H, W) .npy ground-truth maps
-      "frame_interval": 120.0             # optional; seconds between frames (a recording's
+      "frame_interval": 120.0,            # optional; seconds between frames (a recording's
                                           # time stamps)
+      "times_s": [0, 120, 240, ...]       # optional; each frame's time stamp, s (a recording
+                                          # with gaps: a missed frame, lights off at night)
     }
 
 Images: 8- or 16-bit PNG (grey; RGB is converted to luminance), or float TIFF.  Integer
@@ -45,7 +47,7 @@ class LoaderError(GridflowError):
 
 _REQUIRED = ("focal_length", "camera_spacing", "grid", "frames", "pattern")
 _OPTIONAL = ("reference_camera", "reference_frame", "principal_point", "truth", "units",
-             "source", "frame_interval")
+             "source", "frame_interval", "times_s")
 # a format spec of a pattern field: at most a zero-padded width and a 'd' ({t:02d})
 _FIELD_SPEC = re.compile(r"0?[1-9]?d?")
 # more images than this in one folder is not a camera-grid sequence this loader can hold
@@ -153,6 +155,13 @@ def _read_manifest(folder: Path) -> dict:
     if fi is not None and not (_is_number(fi) and fi > 0):
         raise LoaderError(f"{path}: 'frame_interval' must be a positive number of seconds "
                           f"between frames, got {fi!r}")
+    if m.get("times_s") is not None:
+        from .volume import SourceError, check_times
+
+        try:
+            m["_times"] = check_times(m["times_s"], frames, f"{path}: 'times_s'")
+        except SourceError as e:
+            raise LoaderError(str(e)) from None
     for key, kind in (("units", str), ("source", dict)):
         if m.get(key) is not None and not isinstance(m[key], kind):
             raise LoaderError(f"{path}: '{key}' must be a {kind.__name__}, got {m[key]!r}")
@@ -236,7 +245,7 @@ def open_folder(folder):
     return Source(folder, (T, Sy, Sx, H, W), geometry, "folder", tuple(sorted(m["_truth"])),
                   ref if ref is not None else (T - 1) // 2, ref,
                   {"folder": str(folder), "pixel_type": kind, "source": m.get("source")},
-                  reader)
+                  reader, m.get("_times"))
 
 
 class FolderReader:

@@ -4,11 +4,13 @@ and the time series of maps estimated from them (edge: file I/O).
 A **recording** is a camera grid imaged at many time instances (frames).  Two forms:
 
 - an image folder whose ``grid.json`` names many frames (:mod:`gridflow.loader`; the
-  optional ``frame_interval`` key gives the seconds between frames);
+  optional ``frame_interval`` key gives the seconds between frames, ``times_s`` each
+  frame's time stamp);
 - a Zarr store (a folder, conventionally ``*.zarr``) written by :func:`write_recording`::
 
       rec.zarr/                       group; attrs["gridflow"] = {"kind": "recording", ...}
         volume   (T, Sy, Sx, H, W)    float32 intensities, one chunk per frame
+        time_s   (T,)                 optional: each frame's time stamp, s (gaps allowed)
         truth/<name>  (T, H, W)       optional ground truth per frame (synthetic data)
 
   with ``focal_length`` (px), ``camera_spacing`` ``[ds_x, ds_y]``, ``principal_point``
@@ -24,7 +26,8 @@ readable with ``xarray.open_zarr``::
 
     maps.zarr/                        attrs["gridflow"] = {"kind": "maps", "key": ..., ...}
       time  (n,)          frame index of each step     (dimension coordinate)
-      time_s (n,)         seconds from the first frame (where the interval is known)
+      time_s (n,)         seconds from the first frame (where the times are known)
+      interval_s (n,)     seconds between frames in each step's window (growth per hour)
       y (H,), x (W,)      pixel row and column
       <quantity> (time, y, x)  float32, one chunk per step and row band, NaN until written
       interior (y, x)     bool: pixels free of the image border's effects (one chunk per
@@ -50,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .volume import CameraGeometry, Source, SourceError
+from .volume import CameraGeometry, Source, SourceError, check_times
 
 __all__ = ["open_recording_store", "write_recording", "is_recording_store",
            "MapStore", "RecordingError", "RECORDING_KIND", "MAPS_KIND"]
@@ -160,6 +163,14 @@ class _ZarrReader:
         fi = a.get("frame_interval")
         if fi is not None:
             fi, = _numbers_scalar(a, "frame_interval", path)
+        times = None
+        if "time_s" in group:
+            try:
+                raw = np.asarray(group["time_s"][...])
+            except Exception as exc:
+                raise RecordingError(f"{path}/time_s: unreadable ({type(exc).__name__}: "
+                                     f"{exc})") from None
+            times = check_times(raw, T, f"{path}/time_s")
         names = ()
         if "truth" in group:
             names = tuple(sorted(k for k, _ in group["truth"].arrays()))
@@ -169,7 +180,7 @@ class _ZarrReader:
                                          f"expected {(T, H, W)}")
         return Source(path, vol.shape, CameraGeometry(f, ds, pp, fi), "zarr", names, None,
                       None, {"source": (a.get("gridflow") or {}).get("source")},
-                      cls(path, group))
+                      cls(path, group), times)
 
     def read(self, start: int, stop: int, r0: int, r1: int) -> np.ndarray:
         T, Sy, Sx, H, W = self.volume.shape
@@ -224,7 +235,7 @@ def _numbers_scalar(a: dict, key: str, path: Path) -> tuple:
 def write_recording(path, frames, *, shape: tuple, focal_length: float,
                     camera_spacing: tuple, principal_point: tuple | None = None,
                     frame_interval: float | None = None, truth_names: tuple = (),
-                    source: dict | None = None, progress=None) -> Path:
+                    source: dict | None = None, progress=None, times=None) -> Path:
     """Write a recording store from an iterable of frames.
 
     Parameters
@@ -244,6 +255,10 @@ def write_recording(path, frames, *, shape: tuple, focal_length: float,
         How the recording was made (stored in the attributes).
     progress : callable, optional
         Called with the number of frames written after each.
+    times : sequence of float, optional
+        Each frame's time stamp in seconds (array ``time_s``): a recording with gaps
+        (a missed frame, lights off at night).  Default: none, the frames
+        ``frame_interval`` apart.
     """
     import shutil
     import tempfile
@@ -256,6 +271,8 @@ def write_recording(path, frames, *, shape: tuple, focal_length: float,
         raise OutputError(f"{path}: exists; a recording is written to a new name")
     path.parent.mkdir(parents=True, exist_ok=True)
     T, Sy, Sx, H, W = shape
+    if times is not None:
+        times = check_times(times, T, f"{path}: times")
     tmp = None
     try:
         with signals_deferred():
@@ -273,6 +290,11 @@ def write_recording(path, frames, *, shape: tuple, focal_length: float,
         vol = group.create_array("volume", shape=shape, chunks=(1, Sy, Sx, H, W),
                                  dtype="float32", fill_value=np.nan,
                                  dimension_names=("frame", "sy", "sx", "y", "x"))
+        if times is not None:
+            ts = group.create_array("time_s", shape=(T,), chunks=(T,), dtype="float64",
+                                    dimension_names=("frame",))
+            ts[:] = times
+            ts.attrs.update({"units": "s", "long_name": "time stamp of each frame"})
         tg = group.create_group("truth") if truth_names else None
         tarr = {n: tg.create_array(n, shape=(T, H, W), chunks=(1, H, W), dtype="float32",
                                    fill_value=np.nan, dimension_names=("frame", "y", "x"))
@@ -332,12 +354,15 @@ class MapStore:
     @classmethod
     def create(cls, path, *, key: str, frames: list[int], shape: tuple, quantities: list,
                frame_interval: float | None, attrs: dict,
-               band_rows: int | None = None) -> "MapStore":
+               band_rows: int | None = None, times=None, intervals=None) -> "MapStore":
         """Make a new store (``path`` must not exist: whether an existing one is taken up
         is the caller's rule, :meth:`reopen_or_refuse`).
 
         ``band_rows``: rows per band (default the image's height: one band); part of the
-        layout, so it belongs in ``key``.
+        layout, so it belongs in ``key``.  ``times``, ``intervals`` (each shape (n,), s):
+        each step's time since the first frame and frame interval, from the source's time
+        stamps (``time_s``, ``interval_s``); default ``frames * frame_interval`` and
+        ``frame_interval`` where that is known.
         """
         zarr = _zarr()
         path = Path(path)
@@ -354,12 +379,22 @@ class MapStore:
         t[:] = np.asarray(frames, dtype=np.int64)
         t.attrs.update({"long_name": "frame index"})
         coords = []
-        if frame_interval is not None:
+        if times is None and frame_interval is not None:
+            times = np.asarray(frames, dtype=np.float64) * float(frame_interval)
+            intervals = np.full(n, float(frame_interval))
+        if times is not None:
             ts = group.create_array("time_s", shape=(n,), chunks=(n,), dtype="float64",
                                     dimension_names=("time",))
-            ts[:] = np.asarray(frames, dtype=np.float64) * float(frame_interval)
+            ts[:] = np.asarray(times, dtype=np.float64)
             ts.attrs.update({"units": "s", "long_name": "time since the first frame"})
             coords.append("time_s")
+        if intervals is not None:
+            ti = group.create_array("interval_s", shape=(n,), chunks=(n,), dtype="float64",
+                                    dimension_names=("time",))
+            ti[:] = np.asarray(intervals, dtype=np.float64)
+            ti.attrs.update({"units": "s", "long_name": "frame interval over the step's "
+                                                        "temporal window"})
+            coords.append("interval_s")
         for name, size in (("y", H), ("x", W)):
             a = group.create_array(name, shape=(size,), chunks=(size,), dtype="int64",
                                    dimension_names=(name,))
@@ -453,6 +488,20 @@ class MapStore:
 
     def frames(self) -> np.ndarray:
         return np.asarray(self.group["time"][:])
+
+    def step_times(self) -> tuple:
+        """``(times, intervals)``: each step's time since the first frame and its frame
+        interval, seconds, shape (n,) each (from the source's time stamps, or the frame
+        index times the frame interval); ``(None, None)`` where neither is known."""
+        g = self.group
+        n = len(self.frames())
+        fi = self.attrs["gridflow"].get("frame_interval")
+        times = (np.asarray(g["time_s"][:], dtype=float) if "time_s" in g else None)
+        if "interval_s" in g:
+            intervals = np.asarray(g["interval_s"][:], dtype=float)
+        else:                     # a store written before interval_s
+            intervals = np.full(n, float(fi)) if fi else None
+        return times, intervals
 
     def stamps(self) -> np.ndarray:
         """Per step and band the stamp of the frames it read (:meth:`gridflow.sources.Source.stamp`),

@@ -106,6 +106,35 @@ class SourceError(FileFormatError):
     """An input that no backend opens, or that its backend refuses; names the path."""
 
 
+def check_times(values, frames: int, where: str) -> np.ndarray:
+    """Per-frame time stamps as read from a file: ``frames`` finite numbers of seconds,
+    strictly increasing, or :class:`SourceError` naming ``where`` (the file and key) and
+    the first frame that is not.
+
+    Returns
+    -------
+    ndarray of float64, shape (frames,)
+    """
+    try:
+        t = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SourceError(f"{where}: time stamps must be numbers of seconds, got "
+                          f"{str(values)[:80]}") from None
+    if t.shape != (frames,):
+        raise SourceError(f"{where}: {t.size} time stamps for {frames} frames (one per "
+                          "frame, seconds)")
+    bad = ~np.isfinite(t)
+    if bad.any():
+        raise SourceError(f"{where}: time stamp of frame {int(np.flatnonzero(bad)[0])} is "
+                          f"{t[bad][0]} (expected a finite number of seconds)")
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if back.size:
+        k = int(back[0]) + 1
+        raise SourceError(f"{where}: frame {k} at {t[k]:g} s is not after frame {k - 1} at "
+                          f"{t[k - 1]:g} s (time stamps must increase)")
+    return t
+
+
 @dataclass
 class Source:
     """A camera-grid sequence read lazily, whatever its format.
@@ -128,6 +157,9 @@ class Source:
         The reference frame the source states (a folder's ``reference_frame``), if any.
     meta : dict
         Format-specific provenance (an HCI scene's geometry, a generator's parameters).
+    times : ndarray of float, shape (T,), optional
+        Each frame's time stamp in seconds, strictly increasing, where the source has
+        them (:func:`check_times`); :meth:`time_stamps` falls back on the interval.
     """
 
     path: Path
@@ -139,6 +171,16 @@ class Source:
     ref_frame: int | None = None
     meta: dict = field(default_factory=dict)
     _reader: object = field(default=None, repr=False)
+    times: object = field(default=None, repr=False)
+
+    def time_stamps(self):
+        """Each frame's time in seconds, shape (T,): the source's own time stamps
+        (:attr:`times`: a recording's ``time_s``, a folder's ``times_s``), else frame
+        index times the frame interval; None where neither is known."""
+        if self.times is not None:
+            return np.asarray(self.times, dtype=np.float64)
+        fi = self.geometry.frame_interval
+        return None if fi is None else np.arange(self.shape[0]) * float(fi)
 
     # the geometry's parts, read often enough to have names of their own
     @property
@@ -195,7 +237,9 @@ class Source:
         return {"path": str(Path(self.path).resolve()), "shape": list(self.shape),
                 "focal_length": g.focal_length, "camera_spacing": list(g.camera_spacing),
                 "principal_point": list(g.principal_point),
-                "frame_interval": g.frame_interval, **self._reader.identity()}
+                "frame_interval": g.frame_interval, **self._reader.identity(),
+                **({} if self.times is None else
+                   {"times_s": [float(t) for t in np.asarray(self.times)]})}
 
     def stamp(self, start: int, stop: int) -> int:
         """A 63-bit stamp of frames ``start .. stop - 1`` as stored: their files' names,

@@ -29,8 +29,9 @@ def growth_table(maps, truth=None, *, quantity: str = "growth"):
     -------
     pandas.DataFrame
         Columns ``step, frame, time_s, mean, median, median_per_hour, p10, p90,
-        n_pixels`` (and ``truth, q_rel``); growth per frame, and the median per hour where
-        the store records its frame interval (NaN otherwise).
+        n_pixels`` (and ``truth, q_rel``); growth per frame, and the median per hour from
+        each step's frame interval where the store knows it (the source's time stamps or
+        its frame interval; NaN otherwise).
     """
     import pandas as pd
 
@@ -47,7 +48,7 @@ def growth_table(maps, truth=None, *, quantity: str = "growth"):
     interior = np.asarray(g["interior"][:], dtype=bool)
     if rec is not None:
         _check_truth(maps, store, truth, rec, interior.shape, frames)
-    fi = store.attrs["gridflow"].get("frame_interval")
+    times, intervals = store.step_times()
     rows = []
     for i in np.flatnonzero(done):
         m = np.asarray(g[quantity][i], dtype=np.float64)
@@ -59,11 +60,11 @@ def growth_table(maps, truth=None, *, quantity: str = "growth"):
             mask = interior & np.isfinite(t)
         v = m[mask & np.isfinite(m)]
         row = {"step": int(i), "frame": int(frames[i]),
-               "time_s": float(frames[i] * fi) if fi else np.nan,
+               "time_s": float(times[i]) if times is not None else np.nan,
                "mean": float(v.mean()) if v.size else np.nan,
                "median": float(np.median(v)) if v.size else np.nan,
-               "median_per_hour": (float(np.median(v)) * 3600.0 / fi
-                                   if v.size and fi else np.nan),
+               "median_per_hour": (float(np.median(v)) * 3600.0 / intervals[i]
+                                   if v.size and intervals is not None else np.nan),
                "p10": float(np.percentile(v, 10)) if v.size else np.nan,
                "p90": float(np.percentile(v, 90)) if v.size else np.nan,
                "n_pixels": int(v.size)}
@@ -97,8 +98,8 @@ def growth_profiles(maps, *, axis: str = "x", quantity: str = "growth"):
     -------
     pandas.DataFrame
         Columns ``step, frame, time_s, position_px, median, per_hour, n_pixels``;
-        ``median`` per frame, ``per_hour`` per hour where the store records its frame
-        interval (NaN otherwise).  Positions without interior pixels are left out.
+        ``median`` per frame, ``per_hour`` per hour from each step's frame interval
+        where the store knows it (NaN otherwise).  Positions without interior pixels are left out.
     """
     import pandas as pd
 
@@ -109,7 +110,7 @@ def growth_profiles(maps, *, axis: str = "x", quantity: str = "growth"):
     g = store.group
     frames, done = store.frames(), store.done()
     interior = np.asarray(g["interior"][:], dtype=bool)
-    fi = store.attrs["gridflow"].get("frame_interval")
+    times, intervals = store.step_times()
     across = 0 if axis == "x" else 1          # the axis the median runs across
     rows = []
     for i in np.flatnonzero(done):
@@ -120,9 +121,10 @@ def growth_profiles(maps, *, axis: str = "x", quantity: str = "growth"):
             med = np.nanmedian(m, axis=across)
         for pos in np.flatnonzero(n > 0):
             rows.append({"step": int(i), "frame": int(frames[i]),
-                         "time_s": float(frames[i] * fi) if fi else np.nan,
+                         "time_s": float(times[i]) if times is not None else np.nan,
                          "position_px": int(pos), "median": float(med[pos]),
-                         "per_hour": float(med[pos] * 3600.0 / fi) if fi else np.nan,
+                         "per_hour": (float(med[pos] * 3600.0 / intervals[i])
+                                      if intervals is not None else np.nan),
                          "n_pixels": int(n[pos])})
     if not rows:
         raise UsageError(f"{maps}: no step is done yet")
@@ -233,8 +235,9 @@ def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -
     # estimate breaks down (texture-poor spots, the leaf's edge) do not set it
     lo = np.nanpercentile(np.concatenate([m[np.isfinite(m)] for m in imgs]), 2)
     hi = np.nanpercentile(np.concatenate([m[np.isfinite(m)] for m in imgs]), 98)
-    fi = store.attrs["gridflow"].get("frame_interval")
-    label = (lambda f: f"frame {f} ({f * fi / 3600:.1f} h)") if fi else (lambda f: f"frame {f}")
+    timed = table["time_s"].notna().all()
+    hours = dict(zip(table["frame"], table["time_s"] / 3600.0))
+    label = (lambda f: f"frame {f} ({hours[f]:.1f} h)") if timed else (lambda f: f"frame {f}")
     fig, axes = plt.subplots(1, len(chosen), figsize=(2.6 * len(chosen) + 0.8, 3.0),
                              squeeze=False, constrained_layout=True)
     for ax, f, m in zip(axes[0], chosen, imgs):
@@ -249,7 +252,7 @@ def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -
         fig.savefig(fh, format="png", dpi=110)
     plt.close(fig)
 
-    x = table["time_s"] / 3600 if fi else table["frame"]
+    x = table["time_s"] / 3600 if timed else table["frame"]
     fig, ax = plt.subplots(figsize=(7, 3.6), constrained_layout=True)
     ax.fill_between(x, table["p10"] * per_frame, table["p90"] * per_frame, alpha=0.3,
                     color="tab:green", label="10-90 % of the pixels")
@@ -259,7 +262,7 @@ def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -
             label="mean, estimated")
     if "truth" in table:
         ax.plot(x, table["truth"] * per_frame, "k--", lw=1.0, label="truth")
-    ax.set_xlabel("time, h" if fi else "frame")
+    ax.set_xlabel("time, h" if timed else "frame")
     ax.set_ylabel("growth, % area per frame")
     ax.legend(fontsize=8, loc="best")
     ax.set_title("Growth over the interior", fontsize=10)

@@ -163,6 +163,12 @@ class Plan:
         Rows either side of a band its estimate reads.
     reach : int
         Frames either side of a step its estimate reads, where the source has them.
+    notes : tuple of str
+        What the planning left out and why (steps whose window spans a gap).
+    times : tuple of float or None
+        Each step's time, seconds since the first frame, where the source knows it.
+    intervals : tuple of float or None
+        Each step's frame interval, seconds: the mean over its window's frames.
     """
 
     source: object
@@ -172,6 +178,9 @@ class Plan:
     bands: tuple
     halo: int
     reach: int
+    notes: tuple = ()
+    times: tuple | None = None
+    intervals: tuple | None = None
 
     def stamp(self, i: int) -> int:
         lo, hi = self.windows[i]
@@ -448,12 +457,70 @@ def _band_rows(shape, window_frames: int, halo, o: RunOptions, budget: int) -> i
 def plan_run(source, strategy, o: RunOptions, sink) -> Plan:
     """The steps, windows and bands of a run (nothing is read or written)."""
     frames, windows = _steps(source, strategy, o, sink)
+    frames, windows, notes, times, intervals = _timed_steps(source, frames, windows,
+                                                            sink.max_steps == 1 or
+                                                            len(frames) == 1)
     halo = strategy.halo
     n = max(hi - lo for lo, hi in windows)
     rows = _band_rows(source.shape, n, halo, o, _budget(o.memory))
     H = source.shape[3]
     bands = tuple((r0, min(r0 + rows, H)) for r0 in range(0, H, rows))
-    return Plan(source, strategy, frames, windows, bands, halo or 0, strategy.reach)
+    return Plan(source, strategy, frames, windows, bands, halo or 0, strategy.reach,
+                notes, times, intervals)
+
+
+# a frame interval this far from the recording's median interval is a gap: timers jitter
+# by a few per cent, a missed frame doubles the interval.  The temporal filters assume
+# evenly spaced frames: within this tolerance a rate is off by about as much as the
+# intervals differ, a window across a gap is wrong by the gap's factor
+GAP_TOLERANCE = 0.25
+
+
+def _timed_steps(source, frames, windows, one: bool):
+    """The steps whose window spans no gap in the source's time stamps, with notes on
+    those left out, and each step's time and frame interval (s).  A single step (an
+    ``.npz``, ``--ref-frame``) whose window spans a gap is refused."""
+    times = source.time_stamps()
+    if times is None:
+        return frames, windows, (), None, None
+    d = np.diff(times)
+    if d.size == 0:
+        return frames, windows, (), (0.0,) * len(frames), None
+    nominal = float(np.median(d))
+    irregular = np.flatnonzero(np.abs(d / nominal - 1.0) > GAP_TOLERANCE)   # k -> k + 1
+
+    def spans(lo, hi):
+        return [int(k) for k in irregular if lo <= k and k + 1 < hi]
+
+    def say(ks):
+        shown = ", ".join(f"frames {k} -> {k + 1}: {d[k]:g} s" for k in ks[:3])
+        more = f" and {len(ks) - 3} more" if len(ks) > 3 else ""
+        return (f"{shown}{more} (the median interval {nominal:g} s; "
+                f"{GAP_TOLERANCE:.0%} off it is a gap)")
+
+    keep = [i for i, w in enumerate(windows) if not spans(*w)]
+    notes = ()
+    if len(keep) < len(frames):
+        gone = [frames[i] for i in range(len(frames)) if i not in set(keep)]
+        ks = sorted({k for i in range(len(frames)) if i not in set(keep)
+                     for k in spans(*windows[i])})
+        if one:
+            lo, hi = windows[0]
+            raise UsageError(f"{source.path}: the step at frame {frames[0]} reads frames "
+                             f"{lo}..{hi - 1}, whose time stamps have a gap: {say(ks)}; "
+                             "the temporal filters need evenly spaced frames: choose "
+                             "another frame (--ref-frame)")
+        if not keep:
+            raise UsageError(f"{source.path}: every step's window spans a gap in the time "
+                             f"stamps: {say(ks)}")
+        notes = (f"left out {len(gone)} step(s) at frames {gone[0]}..{gone[-1]} whose "
+                 f"temporal window spans a gap in the time stamps: {say(ks)}",)
+    frames = tuple(frames[i] for i in keep)
+    windows = tuple(windows[i] for i in keep)
+    step_t = tuple(float(times[k] - times[0]) for k in frames)
+    step_dt = tuple(float((times[hi - 1] - times[lo]) / (hi - lo - 1)) if hi - lo > 1
+                    else nominal for lo, hi in windows)
+    return frames, windows, notes, step_t, step_dt
 
 
 def _crop(ests: dict, rows: slice, settings: dict) -> dict:
@@ -616,6 +683,7 @@ def estimate(input, output, options: RunOptions | None = None) -> RunReport:
         raise UsageError(f"{', '.join(given)}: for a series of steps (-o MAPS.zarr); -o "
                          f"{output} is one step, estimated in this process")
     plan = plan_run(source, strategy, o, sink)
+    notes = list(notes) + list(plan.notes)
     _check_fits(plan)
     # a cluster that does not answer is reported before the store is made
     client = None

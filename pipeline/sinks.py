@@ -183,7 +183,8 @@ class MapSeriesSink:
                 store = MapStore.create(path, key=key, frames=frames, shape=source.shape[3:],
                                         quantities=quantities[m],
                                         frame_interval=g.frame_interval, attrs=attrs,
-                                        band_rows=band_rows)
+                                        band_rows=band_rows, times=plan.times,
+                                        intervals=plan.intervals)
             self.stores[m] = store
             self.keys[m] = key
 

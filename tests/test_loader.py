@@ -150,3 +150,19 @@ def test_a_non_finite_volume_names_the_file(tmp_path, capsys):
     err = capsys.readouterr().err
     assert f"{tmp_path / 'v.npz'}: volume has 1 non-finite values" in err, err
     assert not (tmp_path / "e.npz").exists()
+
+
+def test_a_folders_time_stamps_are_read_and_bad_ones_named(tmp_path):
+    """grid.json's times_s: one finite, increasing number of seconds per frame; the source
+    gives them as its time stamps (without them: the frame index times the interval)."""
+    from gridflow.sources import open_source
+
+    _make(tmp_path / "f", times_s=[0, 120, 7320])
+    np.testing.assert_array_equal(open_source(tmp_path / "f").time_stamps(), [0, 120, 7320])
+    _make(tmp_path / "g", frame_interval=60.0)
+    np.testing.assert_array_equal(open_source(tmp_path / "g").time_stamps(), [0, 60, 120])
+    for k, (times, text) in enumerate((([0, 120], "2 time stamps for 3 frames"),
+                                       ([0, 120, 120], "frame 2 at 120 s is not after"),
+                                       ([0, "x", 3], "must be numbers of seconds"))):
+        _make(tmp_path / f"b{k}", times_s=times)
+        _expect(tmp_path / f"b{k}", rf"grid.json: 'times_s': .*{text}")

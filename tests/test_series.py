@@ -686,3 +686,84 @@ def test_a_mask_that_cannot_be_used_is_refused_by_name(recording, tmp_path, caps
         err = capsys.readouterr().err
         assert str(spec) in err and text in err, err
         assert not out.exists()
+
+
+# --- time stamps with gaps (issue 36) ----------------------------------------------------
+
+def _with_times(recording, path, times):
+    """The recording's frames and truth again, with these time stamps."""
+    from gridflow.recording import write_recording
+    from gridflow.sources import open_source
+
+    rec = open_source(recording)
+    return write_recording(path, ((rec.read(k, k + 1)[0], rec.truth(k))
+                                  for k in range(rec.frames)),
+                           shape=rec.shape, focal_length=rec.focal_length,
+                           camera_spacing=rec.camera_spacing, frame_interval=60.0,
+                           truth_names=rec.truth_names, times=times)
+
+
+def test_steps_whose_window_spans_a_gap_are_left_out_and_growth_per_hour_uses_the_times(
+        recording, tmp_path):
+    """Frames 60 s apart, the lights off for an hour between frames 19 and 20, and a
+    slower timer (66 s, within the 25 % that counts as jitter) from frame 30 on.  Under
+    the affine model each step reads 8 frames either side: the steps at frames 12..27
+    read across the gap and are left out, named in the report; the others are estimated
+    as without stamps (the same maps), stored at their actual times, and the growth per
+    hour is the median per frame over each step's own frame interval."""
+    from gridflow.pipeline import growth_table
+    from gridflow.recording import MapStore
+
+    times = np.arange(40) * 60.0
+    times[20:] += 3600.0
+    times[30:] += np.arange(1, 11) * 6.0
+    gappy = _with_times(recording, tmp_path / "gappy.zarr", times)
+    settings = {"sigma": 2.0, "window": 9}
+    rep = run_series(gappy, tmp_path / "g.zarr", every=1, settings=settings)
+    text = "\n".join(rep.lines)
+    assert "left out 16 step(s) at frames 12..27" in text, text
+    assert "frames 19 -> 20: 3660 s (the median interval 60 s" in text, text
+    store = MapStore.open(tmp_path / "g.zarr")
+    frames = list(store.frames())
+    assert frames == list(range(8, 12)) + list(range(28, 32))
+    t, dt = store.step_times()
+    np.testing.assert_allclose(t, times[frames] - times[0])
+    # the mean interval over each window: 60 s before the gap; 60 or 66 s after it
+    want = [(times[k + 8] - times[k - 8]) / 16 for k in frames]
+    np.testing.assert_allclose(dt, want)
+    assert dt[0] == 60.0 and dt[-1] > 60.0
+    table = growth_table(tmp_path / "g.zarr")
+    np.testing.assert_allclose(table.median_per_hour, table["median"] * 3600.0 / dt)
+    # the steps kept are those of the recording without stamps
+    run_series(recording, tmp_path / "plain.zarr", every=1, settings=settings)
+    plain = MapStore.open(tmp_path / "plain.zarr")
+    idx = [list(plain.frames()).index(k) for k in frames]
+    np.testing.assert_array_equal(np.asarray(plain.group["growth"][idx]),
+                                  np.asarray(store.group["growth"][:]))
+
+
+def test_one_step_across_a_gap_and_bad_time_stamps_are_refused(recording, tmp_path, capsys):
+    """A single step whose window spans the gap is refused (naming the gap and what to do);
+    time stamps that go back, have the wrong count or are not finite are refused naming
+    the array and the frame."""
+    from gridflow.bench.cli import main
+    from gridflow.sources import SourceError
+
+    times = np.arange(40) * 60.0
+    times[20:] += 3600.0
+    gappy = _with_times(recording, tmp_path / "gappy.zarr", times)
+    assert main(["estimate", str(gappy), "-o", str(tmp_path / "e.npz"), "--motion", "affine",
+                 "--ref-frame", "18", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "frames 19 -> 20: 3660 s" in err and "--ref-frame" in err, err
+    assert not (tmp_path / "e.npz").exists()
+    assert main(["estimate", str(gappy), "-o", str(tmp_path / "e.npz"), "--motion", "affine",
+                 "--sigma", "2", "--window", "9", "--ref-frame", "30", "--no-progress"]) == 0
+    back = times.copy()
+    back[7] = back[6]
+    for bad, text in ((back, "frame 7 at 360 s is not after frame 6"),
+                      (times[:39], "39 time stamps for 40 frames"),
+                      (np.where(np.arange(40) == 3, np.nan, times), "frame 3 is nan")):
+        with pytest.raises(SourceError, match=text):
+            _with_times(recording, tmp_path / "bad.zarr", bad)
+        assert not (tmp_path / "bad.zarr").exists()

@@ -14,7 +14,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from .backends import TensorPlan, select_backend
 from .disentangle import disentangle, solve_affine
@@ -22,8 +21,9 @@ from .filters import FilterPair, get_filter_pair
 from .masks import MIN_OBJECT_WEIGHT, object_window
 from .models import (BRIGHTNESS_MODELS, MODELS, MOTION_MODELS, ZOOM_ROW_SIGNALS, Model,
                      covering_rows, get_model, one_frame_problem, zoom_rows)
-from .pooling import (fit_variance, local_linear_fit, local_mean, local_spread, pool_rates,
-                      pool_reach, support_radius, texture_reach, textured_windows)
+from .pooling import (bell, bell_radius, bell_square_sum, fit_variance, local_linear_fit,
+                      local_mean, local_spread, pool_rates, pool_reach, support_radius,
+                      texture_reach, textured_windows)
 from .result import Estimate
 from .settings import EstimatorSettings, InputError
 from .signals import SignalPlan, signal_plan
@@ -143,16 +143,11 @@ def band_halo(s: EstimatorSettings) -> int:
         return window_halo(s)
     # in per-pixel results: the pooled rates read pool_reach (3 R); growth_sd reads 2 R
     # of pooled results beyond (the growth map's local spread; its correlation-area term:
-    # a fit, a Gaussian of 2 sigma cut at 4 sd, a local mean); each per-pixel result
+    # a fit, a bell of 2 sigma, a local mean); each per-pixel result
     # reads its window of the volume, the texture test a window and 4 px
     R = support_radius(sigma)
-    reach = pool_reach(sigma) + 2 * R + _sd_gauss_radius(s.sigma)
+    reach = pool_reach(sigma) + 2 * R + bell_radius(2.0 * s.sigma)
     return max(window_halo(s), texture_reach(s.window // 2)) + reach
-
-
-def _sd_gauss_radius(window_sigma: float) -> int:
-    """The radius of _growth_sd's Gaussian of ``2 window_sigma`` (scipy cuts it at 4 sd)."""
-    return int(4.0 * 2.0 * window_sigma + 0.5)
 
 
 def temporal_reach(s: EstimatorSettings) -> int:
@@ -483,7 +478,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
 
 
 def _growth_sd(growth, sens, own_rates, valid, fitted, weights, used, sigma,
-               window_sigma):
+               window_sigma, origin):
     """The pooled growth's standard deviation per pixel (``docs/model.md``, *Pooled depth
     rates*): the growth map's local scatter about its local linear fit (the noise the
     pixel's own flow and flow gradient bring, correlations included), plus what the
@@ -491,30 +486,30 @@ def _growth_sd(growth, sens, own_rates, valid, fitted, weights, used, sigma,
     ``rho s^2`` with ``s`` the local spread of the growth's part that the pixel's own
     rates make, ``sum_j (dg/dr_j) r_j``, about its local fit, and ``rho`` the fit's
     variance per unit noise variance (:func:`estimator.pooling.fit_variance`) for that
-    residual's correlation area, measured from the data (a Gaussian of ``2 sigma_w``
-    leaves ``4 pi (2 sigma_w)^2 / area`` of a noise's variance).  NaN where the pixel
-    kept its own rates (the caller gives it its ``growth_err``)."""
+    residual's correlation area, measured from the data (a bell of ``2 sigma_w`` leaves
+    ``sum K^2 / area`` of a noise's variance).  NaN where the pixel kept its own rates
+    (the caller gives it its ``growth_err``)."""
     H, W = growth.shape
     w = (fitted & used & np.isfinite(growth)).astype(float)
-    local = local_spread(np.where(w > 0, growth, 0.0)[None], w, sigma)[0]
+    local = local_spread(np.where(w > 0, growth, 0.0)[None], w, sigma, origin)[0]
     # the rates' noise as the growth sees it: the growth's part that the pixel's own
     # rates make (the three rates' errors are correlated, and partly cancel in it), its
     # residual about the local fit, and that residual's correlation area measured from
-    # the data: a Gaussian of sigma_m leaves 4 pi sigma_m^2 / A of a noise's variance
+    # the data: a bell K of sigma_m leaves sum K^2 / A of a noise's variance
     part = np.zeros((H, W))
     part[valid] = np.sum(sens[:, 6:9] * own_rates.T, axis=1)
     wf = np.where(fitted & np.isfinite(part), 1.0, 0.0)
     part = np.where(wf > 0, part, 0.0)
-    res = np.where(wf > 0, part - local_linear_fit(part[None], wf, sigma)[0], 0.0)
+    res = np.where(wf > 0, part - local_linear_fit(part[None], wf, sigma, origin)[0], 0.0)
     sm = 2.0 * window_sigma
     with np.errstate(invalid="ignore", divide="ignore"):
-        # truncate 4.0 (scipy's default) is what band_halo counts (_sd_gauss_radius)
-        smooth = (ndimage.gaussian_filter(res, sm, truncate=4.0)
-                  / ndimage.gaussian_filter(wf, sm, truncate=4.0))
+        # band_halo counts this bell's reach (bell_radius)
+        smooth = bell(res, sm) / bell(wf, sm)
         smooth = np.where(wf > 0, smooth, 0.0)
-        total = local_mean(wf * res * res, wf, sigma)
-        area = 4.0 * np.pi * sm * sm * local_mean(wf * smooth * smooth, wf, sigma) / total
-    common = fit_variance(weights, sigma, area) * total
+        total = local_mean(wf * res * res, wf, sigma, origin)
+        area = (local_mean(wf * smooth * smooth, wf, sigma, origin)
+                / (total * bell_square_sum(sm)))
+    common = fit_variance(weights, sigma, area, origin) * total
     sd = np.sqrt(local ** 2 + common)
     return np.where(used, sd, np.nan)
 
@@ -541,8 +536,11 @@ def _pooled(kept: np.ndarray, interior: np.ndarray, textured: np.ndarray, sigma:
     # is still solved with the pooled rates
     fit_me = valid & textured & (var_vt > 0)
     weights = np.where(fit_me, 1.0 / np.where(fit_me, var_vt, 1.0), 0.0)
+    # the support's blocks start at the principal point's pixel: a row band (its
+    # principal point moved with it) has the whole image's blocks
+    origin = (int(np.floor(plan.cy)), int(np.floor(plan.cx)))
     rates, used, spread = pool_rates(np.stack([zx, zy, obs[6], obs[7], obs[8]]), valid,
-                                     sigma, weights=weights)
+                                     sigma, weights=weights, origin=origin)
     zx, zy = rates[0][valid], rates[1][valid]
     H, W = interior.shape
     yy, xx = np.nonzero(valid)
@@ -569,7 +567,7 @@ def _pooled(kept: np.ndarray, interior: np.ndarray, textured: np.ndarray, sigma:
         a[valid] = val
         out[name] = a
     out["growth_sd"] = _growth_sd(out["growth"], sens, obs[6:9, valid], valid,
-                                  weights > 0, weights, used, sigma, window_sigma)
+                                  weights > 0, weights, used, sigma, window_sigma, origin)
     flag = np.full((H, W), np.nan)       # NaN where the pixel has no estimate at all
     flag[valid] = 0.0
     flag[used] = 1.0

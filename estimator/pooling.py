@@ -32,7 +32,7 @@ from scipy import ndimage
 
 __all__ = ["POOLED_RATES", "pool_reach", "local_linear_fit", "pool_rates",
            "textured_windows", "texture_reach", "local_spread", "fit_variance",
-           "local_mean", "support_radius"]
+           "local_mean", "support_radius", "bell", "bell_radius", "bell_square_sum"]
 
 # the per-pixel quantities pooled: the projected slopes and the rates of the disparity
 # and of the projected slopes at a fixed pixel
@@ -60,8 +60,108 @@ def _box_width(sigma: float) -> int:
     return max(1, 2 * int(round((w - 1) / 2)) + 1)
 
 
+# Above this many pixels of standard deviation per pixel of block, the support's sums
+# are taken over blocks of f x f pixels (exact sums of every product a fit needs),
+# smoothed on the grid of blocks and the results interpolated linearly back to the pixels
+# (:class:`_Support`): at the default sigma_s = 96 px, 8-px blocks, 64 times fewer
+# samples to smooth.  The bell is then the block's box and three boxes on the block grid
+# (its variance within a few per cent of sigma^2), and a fit stays exact on affine fields
+# (the block sums are exact, linear interpolation is exact on affine fields).
+_SIGMA_PER_BLOCK = 12.0
+
+
+def _block(sigma: float) -> int:
+    """The block size, px, for a support of standard deviation ``sigma``."""
+    return max(1, int(sigma // _SIGMA_PER_BLOCK))
+
+
 def _radius(sigma: float) -> int:
+    f = _block(sigma)
+    if f == 1:
+        return _PASSES * (_box_width(sigma) - 1) // 2
+    # the coarse boxes' reach in blocks, the block itself and the interpolation's next node
+    return f * (_PASSES * (_box_width(sigma / f) - 1) // 2 + 2)
+
+
+def bell_radius(sigma: float) -> int:
+    """The reach, px, of :func:`bell` (three boxes at full resolution)."""
     return _PASSES * (_box_width(sigma) - 1) // 2
+
+
+def bell(a: np.ndarray, sigma: float) -> np.ndarray:
+    """``a`` (shape (H, W)) smoothed by the bell of standard deviation ``sigma`` (three box
+    filters per axis, zeros outside the image), at full resolution."""
+    return _smooth(a, sigma)
+
+
+def bell_square_sum(sigma: float) -> float:
+    """``sum K^2`` of the 2-D bell of :func:`bell` (``1 / (4 pi sigma^2)`` for a
+    Gaussian): a white noise's variance falls by this factor under it."""
+    w = _box_width(sigma)
+    k = np.ones(1)
+    for _ in range(_PASSES):
+        k = np.convolve(k, np.full(w, 1.0 / w))
+    return float(np.sum(k * k) ** 2)
+
+
+class _Support:
+    """The support of standard deviation ``sigma`` on an image of ``shape``, on its grid of
+    blocks (``f`` px; 1: the pixels themselves).  ``origin`` ``(row, col)``: a pixel where
+    blocks start, in the image's rows and columns, so that a row band (its origin moved
+    with it) has the whole image's blocks."""
+
+    def __init__(self, shape, sigma: float, origin=(0, 0), block: int | None = None):
+        H, W = shape
+        f = _block(sigma) if block is None else int(block)
+        self.f, self.sigma, self.shape = f, float(sigma), (H, W)
+        x, y = _coordinates(shape)
+        self.px, self.py = x, y
+        if f == 1:
+            self.x, self.y = x, y
+            return
+        # zeros before the first block boundary (rows = origin mod f) and after the last
+        self.pad = []
+        for n, o in ((H, origin[0]), (W, origin[1])):
+            before = (f - int(o) % f) % f
+            after = (-(n + before)) % f
+            self.pad.append((before, after))
+        (t, b), (le, r) = self.pad
+        ny, nx = (H + t + b) // f, (W + le + r) // f
+        # the blocks' centres in the pixels' coordinates (those of _coordinates)
+        self.y = (np.arange(ny) * f - t + (f - 1) / 2.0 - (H - 1) / 2.0)[:, None]
+        self.x = (np.arange(nx) * f - le + (f - 1) / 2.0 - (W - 1) / 2.0)[None, :]
+        self._rows = self._linear(H, t, ny)
+        self._cols = self._linear(W, le, nx)
+
+    def _linear(self, n, before, nodes):
+        """Per pixel along one axis: the lower node and the weight of the upper, linear
+        interpolation between the nodes' centres (extrapolation past the outer ones)."""
+        u = (np.arange(n) + before - (self.f - 1) / 2.0) / self.f
+        i0 = np.clip(np.floor(u).astype(int), 0, max(nodes - 2, 0))
+        return i0, u - i0
+
+    def sums(self, a: np.ndarray) -> np.ndarray:
+        """``sum K a`` about each node (each pixel where ``f`` is 1)."""
+        if self.f == 1:
+            return _smooth(a, self.sigma)
+        f = self.f
+        # the blocks' means: the bell over the pixels still sums to 1 (as at f = 1), which
+        # fit_variance's squared kernel relies on
+        blocks = np.pad(a, self.pad).reshape(self.y.shape[0], f, self.x.shape[1], f)
+        return _smooth(blocks.mean(axis=(1, 3)), self.sigma / f)
+
+    def to_pixels(self, a: np.ndarray) -> np.ndarray:
+        """A field at the nodes, linearly interpolated to the pixels, shape (H, W)."""
+        if self.f == 1:
+            return a
+        (i0, t), (j0, s) = self._rows, self._cols
+        if a.shape[0] > 1:
+            a = a[i0] * (1 - t)[:, None] + a[i0 + 1] * t[:, None]
+        else:
+            a = np.repeat(a, len(i0), axis=0)
+        if a.shape[1] > 1:
+            return a[:, j0] * (1 - s) + a[:, j0 + 1] * s
+        return np.repeat(a, len(j0), axis=1)
 
 
 def pool_reach(sigma: float) -> int:
@@ -142,23 +242,27 @@ def _coordinates(shape):
             (np.arange(H, dtype=float) - (H - 1) / 2.0)[:, None])
 
 
-def _moments(w, x, y, smooth):
-    """The normal matrix's entries about each pixel p: ``sum K w (x_q - x_p)^i (y_q -
-    y_p)^j`` for ``i + j <= 2`` (``smooth`` applies K)."""
+def _moments(w, sup: _Support, smooth):
+    """The normal matrix's entries about each node p: ``sum K w (x_q - x_p)^i (y_q -
+    y_p)^j`` for ``i + j <= 2`` (``smooth`` applies K; pixels ``q``, nodes ``p``)."""
+    x, y = sup.px, sup.py
     m = {k: smooth(w * f) for k, f in
          (("1", 1.0), ("x", x), ("y", y), ("xx", x * x), ("xy", x * y), ("yy", y * y))}
     s0 = m["1"]
+    x, y = sup.x, sup.y
     return (s0, m["x"] - x * s0, m["y"] - y * s0,
             m["xx"] - 2 * x * m["x"] + x * x * s0,
             m["xy"] - x * m["y"] - y * m["x"] + x * y * s0,
             m["yy"] - 2 * y * m["y"] + y * y * s0)
 
 
-def _first_inverse_row(w, sigma, x, y):
+def _first_inverse_row(w, sup: _Support):
     """The cofactors ``c0, c1, c2`` of the first row of the normal matrix ``A = [[s0, sx,
     sy], [sx, sxx, sxy], [sy, sxy, syy]]`` and ``1 / det A`` (NaN where no plane is
-    determined): the fit's constant term needs only ``A^-1``'s first row."""
-    s0, sx, sy, sxx, sxy, syy = _moments(w, x, y, lambda a: _smooth(a, sigma))
+    determined), at the support's nodes: the fit's constant term needs only ``A^-1``'s
+    first row."""
+    sigma = sup.sigma
+    s0, sx, sy, sxx, sxy, syy = _moments(w, sup, sup.sums)
     c0 = sxx * syy - sxy * sxy
     c1 = sxy * sy - sx * syy
     c2 = sx * sxy - sxx * sy
@@ -171,7 +275,8 @@ def _first_inverse_row(w, sigma, x, y):
     return c0, c1, c2, r
 
 
-def fit_variance(weights: np.ndarray, sigma: float, correlation_area: float) -> np.ndarray:
+def fit_variance(weights: np.ndarray, sigma: float, correlation_area,
+                 origin=(0, 0)) -> np.ndarray:
     """The variance of :func:`local_linear_fit`'s value per unit variance of the samples'
     noise, for noise correlated over ``correlation_area`` pixels (its autocorrelation's
     integral; 1 for white noise).
@@ -187,25 +292,28 @@ def fit_variance(weights: np.ndarray, sigma: float, correlation_area: float) -> 
     ----------
     weights : ndarray, shape (H, W)
     sigma : float
-    correlation_area : float
+    correlation_area : float or ndarray, shape (H, W)
         Pixels.
+    origin : (int, int)
+        Where the support's blocks start (:class:`_Support`).
 
     Returns
     -------
     ndarray, shape (H, W)
     """
     w = np.asarray(weights, dtype=float)
-    x, y = _coordinates(w.shape)
-    c0, c1, c2, r = _first_inverse_row(w, sigma, x, y)
+    sup = _Support(w.shape, sigma, origin)
+    c0, c1, c2, r = _first_inverse_row(w, sup)
     k2 = 1.0 / (4.0 * np.pi * sigma * sigma)
-    b00, b01, b02, b11, b12, b22 = _moments(w * w, x, y,
-                                            lambda a: k2 * _smooth(a, sigma / np.sqrt(2)))
+    half = _Support(w.shape, sigma / np.sqrt(2), origin, block=sup.f)
+    b00, b01, b02, b11, b12, b22 = _moments(w * w, sup, lambda a: k2 * half.sums(a))
     quad = (c0 * c0 * b00 + c1 * c1 * b11 + c2 * c2 * b22
             + 2 * (c0 * c1 * b01 + c0 * c2 * b02 + c1 * c2 * b12))
-    return correlation_area * quad * r * r
+    return correlation_area * sup.to_pixels(quad * r * r)
 
 
-def local_linear_fit(values: np.ndarray, weights: np.ndarray, sigma: float) -> np.ndarray:
+def local_linear_fit(values: np.ndarray, weights: np.ndarray, sigma: float,
+                     origin=(0, 0)) -> np.ndarray:
     """Weighted local linear regression of each map on the pixel coordinates.
 
     At each pixel ``p`` the fit minimises ``sum_q K(q - p) w_q (v_q - a - b (x_q - x_p) -
@@ -222,26 +330,30 @@ def local_linear_fit(values: np.ndarray, weights: np.ndarray, sigma: float) -> n
         Non-negative sample weights (0 drops a pixel).
     sigma : float
         Pixels.
+    origin : (int, int)
+        Where the support's blocks start (:class:`_Support`): a pixel's row and column,
+        the same for a row band as for the whole image (the principal point).
 
     Returns
     -------
     ndarray, shape (K, H, W)
     """
     w = np.asarray(weights, dtype=float)
-    x, y = _coordinates(w.shape)
-    c0, c1, c2, r = _first_inverse_row(w, sigma, x, y)
+    sup = _Support(w.shape, sigma, origin)
+    c0, c1, c2, r = _first_inverse_row(w, sup)
     out = np.empty(np.shape(values), dtype=float)
+    x, y = sup.px, sup.py
     for k, v in enumerate(values):
         wv = w * np.where(w > 0, v, 0.0)
-        b0 = _smooth(wv, sigma)
-        bx = _smooth(wv * x, sigma) - x * b0
-        by = _smooth(wv * y, sigma) - y * b0
-        out[k] = (c0 * b0 + c1 * bx + c2 * by) * r
+        b0 = sup.sums(wv)
+        bx = sup.sums(wv * x) - sup.x * b0
+        by = sup.sums(wv * y) - sup.y * b0
+        out[k] = sup.to_pixels((c0 * b0 + c1 * bx + c2 * by) * r)
     return out
 
 
 def pool_rates(rates: np.ndarray, valid: np.ndarray, sigma: float,
-               k: float = OUTLIER_SD, weights: np.ndarray | None = None
+               k: float = OUTLIER_SD, weights: np.ndarray | None = None, origin=(0, 0)
                ) -> tuple[np.ndarray, np.ndarray]:
     """The rates pooled over a bell-shaped support, the outliers keeping their own.
 
@@ -262,6 +374,8 @@ def pool_rates(rates: np.ndarray, valid: np.ndarray, sigma: float,
         Outlier threshold in local standard deviations.
     weights : ndarray, shape (H, W), optional
         Sample weights of the fits (default 1 on the valid pixels).
+    origin : (int, int)
+        Where the support's blocks start (:func:`local_linear_fit`).
 
     Returns
     -------
@@ -276,33 +390,40 @@ def pool_rates(rates: np.ndarray, valid: np.ndarray, sigma: float,
     valid = valid & np.isfinite(rates).all(0)
     base = np.ones(valid.shape) if weights is None else np.asarray(weights, dtype=float)
     w = np.where(valid, base, 0.0)
-    fit = local_linear_fit(rates, w, sigma)
+    fit = local_linear_fit(rates, w, sigma, origin)
+    sup = _Support(valid.shape, sigma, origin)
     with np.errstate(invalid="ignore", divide="ignore"):
         res = np.where(valid, rates - fit, 0.0)
-        spread = np.sqrt(np.stack([_smooth(w * r * r, sigma) for r in res])
-                         / _smooth(w, sigma))
+        total = sup.sums(w)
+        spread = np.stack([sup.to_pixels(np.sqrt(sup.sums(w * r * r) / total))
+                           for r in res])
         outlier = (np.abs(res) > k * spread).any(0)
     keep = valid & ~outlier
     if outlier.any():
-        fit = local_linear_fit(rates, np.where(keep, w, 0.0), sigma)
+        fit = local_linear_fit(rates, np.where(keep, w, 0.0), sigma, origin)
     pooled = keep & np.isfinite(fit).all(0)
     out = np.where(pooled, fit, np.where(valid, rates, np.nan))
     return out, pooled, spread
 
 
-def local_mean(values: np.ndarray, weights: np.ndarray, sigma: float) -> np.ndarray:
+def local_mean(values: np.ndarray, weights: np.ndarray, sigma: float,
+               origin=(0, 0)) -> np.ndarray:
     """The weighted local mean of ``values`` (already multiplied by ``weights``, shape
     (H, W)) over the support: ``sum K v / sum K w``."""
+    sup = _Support(np.shape(weights), sigma, origin)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return _smooth(values, sigma) / _smooth(weights, sigma)
+        return sup.to_pixels(sup.sums(values) / sup.sums(weights))
 
 
-def local_spread(values: np.ndarray, weights: np.ndarray, sigma: float) -> np.ndarray:
+def local_spread(values: np.ndarray, weights: np.ndarray, sigma: float,
+                 origin=(0, 0)) -> np.ndarray:
     """The local standard deviation of each map about its local linear fit
     (:func:`local_linear_fit`): the weighted root mean square of the residuals over the
     same support.  Shapes as :func:`local_linear_fit`."""
-    fit = local_linear_fit(values, weights, sigma)
+    fit = local_linear_fit(values, weights, sigma, origin)
     w = np.asarray(weights, dtype=float)
+    sup = _Support(w.shape, sigma, origin)
     with np.errstate(invalid="ignore", divide="ignore"):
         res = np.where(w > 0, values - fit, 0.0)
-        return np.sqrt(np.stack([_smooth(w * r * r, sigma) for r in res]) / _smooth(w, sigma))
+        total = sup.sums(w)
+        return np.stack([sup.to_pixels(np.sqrt(sup.sums(w * r * r) / total)) for r in res])

@@ -97,6 +97,7 @@ class NpzSink:
     def prepare(self, plan) -> None:
         """Nothing to make: the files are written whole at the end."""
         self._nbands = len(plan.bands)
+        self._geometry = plan.source.geometry
 
     def todo(self, plan) -> tuple[list, list, int]:
         return [(i, b) for i in range(len(plan.frames)) for b in range(len(plan.bands))], [], 0
@@ -123,6 +124,12 @@ class NpzSink:
 
         if self.ests is None:
             return []
+        from gridflow.estimator import Estimate
+
+        # the unit of each map, stored with them (meta's settings.units)
+        self.ests = {m: Estimate(e.maps, e.model, e.interior,
+                                 {**e.settings, "units": _units(list(e.maps), self._geometry)})
+                     for m, e in self.ests.items()}
         save_estimates({self.outputs[m]: est for m, est in self.ests.items()})
         lines = []
         for m, est in self.ests.items():
@@ -261,6 +268,7 @@ def _units(quantities, g) -> dict:
              "Uz": f"{length} per {per}", "Uz_err": f"{length} per {per}",
              "growth": f"1 per {per} (d ln(area)/dt)", "growth_err": f"1 per {per}",
              "rotation": f"rad per {per}", "rotation_err": f"rad per {per}",
+             "growth_sd": f"1 per {per}", "pooled": "1 (pooled rates used)",
              "Zx_t": f"1 per {per}", "Zy_t": f"1 per {per}", "a1": f"1 per {per}",
              "a2": f"1 per {per}^2", "a1x": f"1 per {per} per {length}",
              "a1y": f"1 per {per} per {length}", "a2x": f"1 per {per}^2 per {length}",

@@ -175,10 +175,12 @@ def test_growth_sd_describes_the_pooled_errors():
     """``growth_sd`` against the actual errors of the pooled growth, on the still leaf of
     bench/growth_maps.py (256^2, sigma_n = 0.003), two noise draws.
 
-    Measured at this commit (seeds 0, 1): within one growth_sd 0.39 and 0.97 of the
-    pixels (the error common to the support is one draw per image), mean 0.68; within two
-    0.71 and 1.00; rank correlation with the error 0.34 and 0.19; the median growth_sd
-    0.79 and 3.4 times the median error.  Asked: the mean fraction within one sd between
+    Measured when this test was written (seeds 0, 1): within one growth_sd 0.39 and 0.97
+    of the pixels (the error common to the support is one draw per image), mean 0.68;
+    within two 0.71 and 1.00; rank correlation with the error 0.34 and 0.19; the median
+    growth_sd 0.79 and 3.4 times the median error.  With the support's sums on 8-px blocks
+    (bench/README.md's growth-maps table, the same leaf): 0.37 and 0.96, mean 0.67;
+    within two 0.85 in the mean; rank correlation 0.27 in the mean.  Asked: the mean fraction within one sd between
     0.5 and 0.9 and within two at least 0.8 (the measured means 0.68 and 0.86, less or
     more a quarter of the draws' spread), a positive rank correlation above 0.1 in each
     draw, and the median sd within a factor 5 of the median error.  The per-pixel
@@ -201,23 +203,29 @@ def test_growth_sd_describes_the_pooled_errors():
     assert 0.5 < np.mean(one) < 0.9 and np.mean(two) >= 0.8, (one, two)
 
 
-def test_a_row_band_with_band_halo_rows_gives_the_whole_images_pooled_maps():
+@pytest.mark.parametrize("support", [4.0, 24.0])
+def test_a_row_band_with_band_halo_rows_gives_the_whole_images_pooled_maps(support):
     """A band estimated from only its rows and band_halo rows either side (as the
     pipeline's row bands are) gives the whole image's maps there, pooled rates and
-    growth_sd included: everything a pixel's result reads lies within band_halo.  With
-    half the halo it does not (the check can fail).  Bound: 1e-8 of each map's largest
-    value (the running sums' rounding when the rows a sum spans change; measured at this
-    commit: up to 6.7e-10)."""
+    growth_sd included: everything a pixel's result reads lies within band_halo; with a
+    support of 24 px its sums are taken over 2-px blocks, which start at the principal
+    point in the band as in the whole image.  With half the halo it does not (the check
+    can fail: measured growth_sd off by 7.6e-5 with half the halo at 4 px, 1.0e-2 with a
+    quarter at 24 px).  Bound: 1e-8 (4 px support) and 2e-6 (24 px) of each map's largest
+    value: the running sums' rounding when the rows a sum spans change, measured up to
+    7.1e-10, and on the block grid up to 6.5e-7 (Zx_t; about the same with 90 rows more
+    halo, so not the reach: the rates' rounding near the outlier test's threshold, the
+    blocks' fit counting some 10^3 pixels)."""
     from gridflow.estimator import band_halo, EstimatorSettings
 
-    kw = dict(sigma=2.0, window=9, growth_support=4.0, motion="affine")
-    sv = make_sinusoid(height=260, width=48, frames=9, U_Z=0.0, growth=1e-3,
+    kw = dict(sigma=2.0, window=9, growth_support=support, motion="affine")
+    h = band_halo(EstimatorSettings(**kw))
+    H = 2 * h + 40                                      # a true band, not the whole image
+    sv = make_sinusoid(height=H, width=48, frames=9, U_Z=0.0, growth=1e-3,
                        growth_x=-2e-4, noise=0.01, seed=5)
     cx, cy = sv.principal_point
     whole = estimate(sv.volume, sv.focal_length, sv.camera_spacing, **kw)
-    h = band_halo(EstimatorSettings(**kw))
-    assert h < 130 - 5                                  # a true band, not the whole image
-    c0, c1 = 125, 135
+    c0, c1 = h + 15, h + 25
 
     def band(halo):
         a0, a1 = c0 - halo, c1 + halo
@@ -230,10 +238,11 @@ def test_a_row_band_with_band_halo_rows_gives_the_whole_images_pooled_maps():
         ref = ref[c0:c1]
         scale = np.nanmax(np.abs(ref)) if np.isfinite(ref).any() else 1.0
         np.testing.assert_array_equal(np.isnan(got[q]), np.isnan(ref), err_msg=q)
-        assert np.nanmax(np.abs(got[q] - ref), initial=0.0) <= 1e-8 * scale, q
-    short = band(h // 2)
+        bound = 1e-8 if support < 24 else 2e-6
+        assert np.nanmax(np.abs(got[q] - ref), initial=0.0) <= bound * scale, q
+    short = band(h // 2 if support < 24 else h // 4)
     assert np.nanmax(np.abs(short["growth_sd"] - whole["growth_sd"][c0:c1])) > \
-        1e-6 * np.nanmax(whole["growth_sd"][c0:c1])
+        max(1e-6, 100 * bound) * np.nanmax(whole["growth_sd"][c0:c1])
 
 
 # --- masks: windows that use only the object's pixels ------------------------------------

@@ -279,16 +279,21 @@ def _surface_rates(theta, Zx, Zy):
 
 
 def _rate_coefficients(Zx, Zy) -> dict:
-    """The coefficients of growth and rotation in ``theta`` (each shape (N, 9); zero on
-    ``U``): :func:`_surface_rates` is linear, ``growth = sum_i e_i* . g_i`` and
-    ``rotation = sum_i ((e_i* . t1) t2 - (e_i* . t2) t1) . g_i / 2``."""
+    """The coefficients of growth, rotation and the slopes' rates in ``theta`` (each shape
+    (N, 9); zero on ``U``): :func:`_surface_rates` is linear, ``growth = sum_i e_i* .
+    g_i``, ``rotation = sum_i ((e_i* . t1) t2 - (e_i* . t2) t1) . g_i / 2``, ``Zx_t =
+    g1z - Z_x g1x - Z_y g1y`` and ``Zy_t`` alike with ``g2``."""
     e, inv, (t1, t2) = _surface_frame(Zx, Zy)
     dual = [inv[a][0] * e[0] + inv[a][1] * e[1] for a in range(2)]
     zero = np.zeros((3, Zx.size))
     growth = np.concatenate([zero] + dual)
     rotation = np.concatenate(
         [zero] + [0.5 * ((d * t1).sum(0) * t2 - (d * t2).sum(0) * t1) for d in dual])
-    return {"growth": growth.T, "rotation": rotation.T}
+    # the slopes' rates: Zx_t = g1z - Zx g1x - Zy g1y, Zy_t = g2z - Zx g2x - Zy g2y
+    slope = np.stack([-Zx, -Zy, np.ones_like(Zx)])
+    zx_t = np.concatenate([zero, slope, zero])
+    zy_t = np.concatenate([zero, zero, slope])
+    return {"growth": growth.T, "rotation": rotation.T, "Zx_t": zx_t.T, "Zy_t": zy_t.T}
 
 
 _AFFINE_DT_ROWS = ("Ix", "Iy", "IxDx", "IxDy", "IyDx", "IyDy")
@@ -374,34 +379,34 @@ def solve_affine(obs: np.ndarray, Z: np.ndarray, Zx: np.ndarray, Zy: np.ndarray,
     N = Z.size
     ok = np.isfinite(obs).all(0) & np.isfinite(Z) & np.isfinite(Zx) & np.isfinite(Zy)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        # the system's columns: the observations of each unit motion
-        M = np.empty((N, 9, 9))
-        for j in range(9):
-            unit = np.zeros((9, N))
-            unit[j] = 1.0
-            M[:, :, j] = affine_observations(unit, Z, Zx, Zy, x0, y0, f).T
+        # the system's columns: the observations of each unit motion, all nine in one
+        # call (unit motion j of pixel n at column j N + n)
+        units = np.repeat(np.eye(9), N, axis=1)
+        tile = lambda a: np.tile(a, 9)  # noqa: E731
+        cols = affine_observations(units, tile(Z), tile(Zx), tile(Zy), tile(x0), tile(y0), f)
+        M = np.ascontiguousarray(cols.reshape(9, 9, N).transpose(2, 0, 1))
         M[~ok] = np.eye(9)
-        theta = np.linalg.solve(M, np.where(ok, obs, 0.0).T[..., None])[..., 0].T
-        theta[:, ~ok] = np.nan
-        out = {"Ux": theta[0], "Uy": theta[1], "Uz": theta[2]}
-        out.update(_surface_rates(theta, Zx, Zy))
+        # every output is linear in theta, q = c_q . theta = c_q . M^-1 o = (M^-T c_q) . o:
+        # one solve with M^T for all of them (docs/model.md), whose columns also give the
+        # outputs' first-order variances sum_j (M^-T c_q)_j^2 v_j and the growth's
+        # sensitivity to each observation, no inverse
+        coef = _rate_coefficients(Zx, Zy)
+        C = np.zeros((N, 9, 7))
+        C[:, 0, 0] = C[:, 1, 1] = C[:, 2, 2] = 1.0
+        for q, name in enumerate(("growth", "rotation", "Zx_t", "Zy_t"), start=3):
+            C[:, :, q] = coef[name]
+        A = np.linalg.solve(M.transpose(0, 2, 1), np.where(ok[:, None, None], C, 0.0))
+        vals = np.einsum("njq,jn->qn", A, np.where(ok, obs, 0.0))
+        vals[:, ~ok] = np.nan
+        out = dict(zip(("Ux", "Uy", "Uz", "growth", "rotation", "Zx_t", "Zy_t"), vals))
         if var_obs is not None:
-            # a quantity c . theta = c . M^-1 o has variance sum_j (M^-T c)_j^2 v_j: one
-            # solve with M^T for the three quantities, no inverse
-            coef = _rate_coefficients(Zx, Zy)
-            C = np.stack([np.broadcast_to(np.eye(9)[2], (N, 9)), coef["growth"],
-                          coef["rotation"]], axis=2)
-            MT = M.transpose(0, 2, 1)
-            A = np.linalg.solve(MT, np.where(ok[:, None, None], C, 0.0))
-            sd = np.sqrt(np.einsum("njq,nj->qn", A * A, var_obs))
+            sd = np.sqrt(np.einsum("njq,nj->qn", A[:, :, 2:5] ** 2, var_obs))
             sd[:, ~ok] = np.nan
             out["Uz_err"], out["growth_err"], out["rotation_err"] = sd
         if sensitivity:
-            c = _rate_coefficients(Zx, Zy)["growth"]
-            A = np.linalg.solve(M.transpose(0, 2, 1),
-                                np.where(ok[:, None], c, 0.0)[..., None])[..., 0]
-            A[~ok] = np.nan
-            out["growth_sensitivity"] = A
+            G = A[:, :, 3].copy()
+            G[~ok] = np.nan
+            out["growth_sensitivity"] = G
     return out
 
 

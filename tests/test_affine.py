@@ -256,9 +256,10 @@ def test_error_estimates_bound_the_scatter(grid):
 
 
 def test_rate_coefficients_are_the_rates_linear_map():
-    """The error estimates carry the covariance through the growth's and rotation's
-    coefficients in theta; they must be the linear map :func:`_surface_rates` applies
-    (checked on random motions and slopes, to rounding)."""
+    """The outputs and their error estimates come from the growth's, rotation's and slope
+    rates' coefficients in theta (solve_affine: one solve with M^T); they must be the
+    linear map :func:`_surface_rates` applies (checked on random motions and slopes, to
+    rounding)."""
     from gridflow.estimator.disentangle import _rate_coefficients, _surface_rates
 
     rng = np.random.default_rng(5)
@@ -266,6 +267,6 @@ def test_rate_coefficients_are_the_rates_linear_map():
     theta = rng.normal(size=(9, 50))
     rates = _surface_rates(theta, Zx, Zy)
     coef = _rate_coefficients(Zx, Zy)
-    for q in ("growth", "rotation"):
+    for q in ("growth", "rotation", "Zx_t", "Zy_t"):
         np.testing.assert_allclose(np.einsum("nj,jn->n", coef[q], theta), rates[q],
                                    rtol=1e-12, atol=1e-12)

@@ -8,8 +8,10 @@ base to 2e-4 at its tip, times a day/night rhythm of +-50 % over 40 frames (one 
 every 2 minutes), still, under a spotlight that swings across it; 5 x 5 cameras 0.4 mm
 apart at 420 mm, 256^2 px, 25 frames.  It is rendered as a recording (``gridflow
 record-leaf --tip-growth``, images cached), estimated with the default command for
-growth (``gridflow estimate LEAF.zarr --motion affine``) and with the leaf's mask
-segmented from the images (``--mask auto``: each window uses only leaf pixels), and
+growth (``gridflow estimate LEAF.zarr --motion affine``), with the leaf's mask
+segmented from the images (``--mask auto``: each window uses only leaf pixels), and with
+the mask and the growth defaults' alternatives (``--sigma 8 --window 33``;
+``--temporal-radius 4``) on the same steps, and
 scored per step against the truth of each frame, per region: the leaf's base, middle and tip thirds (by the material
 distance from the base) on the pixels whose window lies on the leaf (farther than the
 window's reach from its edge) and the band within that reach of the edge.  Writes the
@@ -33,8 +35,12 @@ __all__ = ["scene", "REGIONS", "METHODS", "run", "region_masks", "score_step", "
            "main"]
 
 REGIONS = ("base", "middle", "tip", "inner", "edge_band")
-# what is run: the label and the options of gridflow estimate beside --motion affine
-METHODS = {"default": {}, "mask auto": {"mask": "auto"}}
+# what is run: the label, the estimator settings beside --motion affine and the other
+# options of gridflow estimate: the default, the mask, and with the mask the defaults'
+# alternatives (a window of half the size; 4 frames either side instead of 6)
+METHODS = {"default": ({}, {}), "mask auto": ({}, {"mask": "auto"}),
+           "mask auto, sigma 8": ({"sigma": 8.0, "window": 33}, {"mask": "auto"}),
+           "mask auto, temporal radius 4": ({"temporal_radius": 4}, {"mask": "auto"})}
 
 
 def scene():
@@ -118,10 +124,10 @@ def run(cache="work/cube", *, progress: bool = True):
         for line in make_leaf_recording(rec, sc, cache=cache, progress=progress):
             print(line, file=sys.stderr)
         rows, snap, seconds = [], {"growth": {}, "est": {}}, {}
-        for method, extra in METHODS.items():
+        for method, (settings, extra) in METHODS.items():
             maps = Path(tmp) / f"maps-{len(seconds)}.zarr"
             t0 = time.perf_counter()
-            report = estimate(rec, maps, RunOptions(settings={"motion": "affine"},
+            report = estimate(rec, maps, RunOptions(settings={"motion": "affine", **settings},
                                                     progress=progress, **extra))
             seconds[method] = time.perf_counter() - t0
             for line in report.lines:
@@ -129,14 +135,22 @@ def run(cache="work/cube", *, progress: bool = True):
             store = MapStore.open(maps)
             g = store.group
             frames = store.frames()
+            if method != "default":
+                # the same steps for every method (a shorter temporal window has more)
+                keep = np.isin(frames, snap["frames"])
+                frames = frames[keep]
+                steps = np.flatnonzero(keep)
+            else:
+                steps = np.arange(len(frames))
+                snap["frames"] = np.asarray(frames)
             interior = np.asarray(g["interior"][:], bool)
             est_k, tru_k, middle = [], [], len(frames) // 2
-            for i, k in enumerate(frames):
+            for i, k in zip(steps, frames):
                 growth = np.asarray(g["growth"][i], np.float64)
                 truth = uneven_leaf_truth(sc, margin=0.0, frame=int(k))
                 masks = region_masks(truth, interior, reach, sc.leaf_length)
                 for r in score_step(growth, truth, masks):
-                    rows.append({"method": method, "step": i, "frame": int(k), **r})
+                    rows.append({"method": method, "step": int(i), "frame": int(k), **r})
                 # the kymograph over the leaf's pixels with an estimate
                 on = np.asarray(truth["leaf"], bool) & interior & np.isfinite(growth)
                 e_line = np.full(sc.height, np.nan)
@@ -146,14 +160,13 @@ def run(cache="work/cube", *, progress: bool = True):
                 t_line[rr] = _profile(truth["growth"], on)[1]
                 est_k.append(e_line)
                 tru_k.append(t_line)
-                if i == middle:
+                if k == snap["frames"][middle]:
                     snap.update(image=open_source(rec).read(int(k), int(k) + 1)[0, 2, 2],
                                 truth=truth, masks=masks, frame=int(k))
                     snap["growth"][method] = growth
             snap["est"][method] = np.array(est_k)
             snap["tru_" + method] = np.array(tru_k)
-    snap.update(frames=np.asarray(frames), frame_interval=sc.frame_interval,
-                seconds=seconds, scene=sc)
+    snap.update(frame_interval=sc.frame_interval, seconds=seconds, scene=sc)
     return rows, snap
 
 

@@ -14,7 +14,8 @@ A **recording** is a camera grid imaged at many time instances (frames).  Two fo
         truth/<name>  (T, H, W)       optional ground truth per frame (synthetic data)
 
   with ``focal_length`` (px), ``camera_spacing`` ``[ds_x, ds_y]``, ``principal_point``
-  ``[cx, cy]`` and ``frame_interval`` (s, or null) in the group's attributes.
+  ``[cx, cy]``, ``frame_interval`` (s, or null) and optionally ``units`` in the group's
+  attributes.
 
 Both are opened through :func:`gridflow.sources.open_source` (this module's backend:
 :func:`open_recording_store`) without reading an image: :meth:`gridflow.sources.Source.
@@ -178,7 +179,12 @@ class _ZarrReader:
                 if group["truth"][n].shape != (T, H, W):
                     raise RecordingError(f"{path}/truth/{n}: shape {group['truth'][n].shape}, "
                                          f"expected {(T, H, W)}")
-        return Source(path, vol.shape, CameraGeometry(f, ds, pp, fi), "zarr", names, None,
+        units = a.get("units")
+        if units is not None and not isinstance(units, str):
+            raise RecordingError(f"{path}/zarr.json: attribute 'units' must be a string (the "
+                                 f"world unit of lengths), got {units!r}")
+        return Source(path, vol.shape, CameraGeometry(f, ds, pp, fi, units or "world units"),
+                      "zarr", names, None,
                       None, {"source": (a.get("gridflow") or {}).get("source")},
                       cls(path, group), times)
 
@@ -235,7 +241,8 @@ def _numbers_scalar(a: dict, key: str, path: Path) -> tuple:
 def write_recording(path, frames, *, shape: tuple, focal_length: float,
                     camera_spacing: tuple, principal_point: tuple | None = None,
                     frame_interval: float | None = None, truth_names: tuple = (),
-                    source: dict | None = None, progress=None, times=None) -> Path:
+                    source: dict | None = None, progress=None, times=None,
+                    units: str | None = None) -> Path:
     """Write a recording store from an iterable of frames.
 
     Parameters
@@ -259,6 +266,8 @@ def write_recording(path, frames, *, shape: tuple, focal_length: float,
         Each frame's time stamp in seconds (array ``time_s``): a recording with gaps
         (a missed frame, lights off at night).  Default: none, the frames
         ``frame_interval`` apart.
+    units : str, optional
+        The world unit of lengths (``"mm"``; attribute ``units``), default "world units".
     """
     import shutil
     import tempfile
@@ -286,7 +295,8 @@ def write_recording(path, frames, *, shape: tuple, focal_length: float,
                             "principal_point": (None if principal_point is None else
                                                 [float(v) for v in principal_point]),
                             "frame_interval": (None if frame_interval is None else
-                                               float(frame_interval))})
+                                               float(frame_interval)),
+                            **({} if units is None else {"units": str(units)})})
         vol = group.create_array("volume", shape=shape, chunks=(1, Sy, Sx, H, W),
                                  dtype="float32", fill_value=np.nan,
                                  dimension_names=("frame", "sy", "sx", "y", "x"))

@@ -29,7 +29,8 @@ def _new_store(output) -> Path:
 
 
 def _write_frames(out: Path, T: int, frame, *, shape, focal_length, camera_spacing,
-                  frame_interval, truth_names, source, progress: bool, what: str) -> float:
+                  frame_interval, truth_names, source, progress: bool, what: str,
+                  units: str | None = None) -> float:
     """Write ``frame(k) -> (views, truth)`` for k < T into the recording store ``out``,
     one frame in memory at a time, with a progress bar; returns the seconds taken."""
     from gridflow.recording import write_recording
@@ -45,7 +46,7 @@ def _write_frames(out: Path, T: int, frame, *, shape, focal_length, camera_spaci
         write_recording(out, (frame(k) for k in range(T)), shape=shape,
                         focal_length=focal_length, camera_spacing=camera_spacing,
                         frame_interval=frame_interval, truth_names=truth_names,
-                        source=source,
+                        source=source, units=units,
                         progress=(lambda n: bar.update(1)) if bar is not None else None)
     finally:
         if bar is not None:
@@ -100,7 +101,7 @@ def make_leaf_recording(output, scene=None, *, cache=RENDER_CACHE,
     seconds = _write_frames(
         out, T, lambda k: (images.read(k, k + 1)[0], scene.truth_at(k)), shape=images.shape,
         focal_length=scene.f, camera_spacing=scene.spacing,
-        frame_interval=scene.frame_interval, truth_names=LEAF_TRUTH_NAMES,
+        frame_interval=scene.frame_interval, truth_names=LEAF_TRUTH_NAMES, units="mm",
         source={"scene": "POV-Ray leaf recording", "params": scene.as_dict(),
                 "images": folder.name}, progress=progress,
         what="copying the frames and writing their truth")

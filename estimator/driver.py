@@ -468,7 +468,9 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         for m in models:
             for a in out[m].values():
                 a[~interior] = np.nan
-    used = dict(s.as_dict(), masked=masked is not None, filters_xy=plan.spatial.name, filters_sx=plan.cam_x.name,
+    # "masked" only where a mask was given: unmasked estimates record what they did
+    used = dict(s.as_dict(), **({"masked": True} if masked is not None else {}),
+                filters_xy=plan.spatial.name, filters_sx=plan.cam_x.name,
                 filters_sy=plan.cam_y.name if plan.cam_y else None,
                 filters_t=plan.time.name if plan.time else None,
                 temporal_radius=plan.R_t, ref_frame=plan.k_ref, backend=backend.name,

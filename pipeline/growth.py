@@ -195,6 +195,35 @@ def _check_truth(maps, store, truth, rec, shape, frames) -> None:
                          "against that recording's truth")
 
 
+def scale_bar_length(depth: float, focal_length: float, width_px: int) -> tuple[float, float]:
+    """A scale bar for an image ``width_px`` wide of a surface at ``depth`` (world units)
+    seen with ``focal_length`` px: ``(length in world units, in px)``, a round length (1,
+    2 or 5 times a power of ten) near a fifth of the image's width there."""
+    per_px = depth / focal_length
+    target = width_px * per_px / 5.0
+    p = 10.0 ** np.floor(np.log10(target))
+    length = max(m * p for m in (1.0, 2.0, 5.0) if m * p <= target)
+    return float(length), float(length / per_px)
+
+
+def _scale_bar(ax, store, step: int, where) -> None:
+    """A scale bar on a growth map, at the median depth of the step's pixels ``where``
+    (none where the series holds no depth)."""
+    if "Z" not in store.quantities or not where.any():
+        return
+    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
+
+    g = store.attrs["gridflow"]
+    Z = float(np.nanmedian(np.asarray(store.group["Z"][step], dtype=float)[where]))
+    if not (np.isfinite(Z) and Z > 0):
+        return
+    length, px = scale_bar_length(Z, g["focal_length"], where.shape[1])
+    units = (g.get("geometry") or {}).get("units") or "world units"
+    ax.add_artist(AnchoredSizeBar(ax.transData, px, f"{length:g} {units}", "lower left",
+                                  pad=0.3, frameon=False, size_vertical=1.5, color="k",
+                                  fontproperties={"size": 7}))
+
+
 def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -> list[Path]:
     """The growth maps at chosen frames (a strip on one colour scale) and the growth over
     the interior against time: its median (robust to the few pixels where the estimate
@@ -245,6 +274,8 @@ def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -
         ax.set_title(label(f), fontsize=9)
         ax.set_xticks([])
         ax.set_yticks([])
+        i = int(table.loc[table["frame"] == f, "step"].iloc[0])
+        _scale_bar(ax, store, i, interior & np.isfinite(m))
     fig.colorbar(im, ax=axes[0], shrink=0.85, label="growth, % area per frame")
     fig.suptitle(f"Growth maps ({maps})", fontsize=10)
     out1 = fig_dir / "growth_maps.png"

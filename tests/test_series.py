@@ -767,3 +767,18 @@ def test_one_step_across_a_gap_and_bad_time_stamps_are_refused(recording, tmp_pa
         with pytest.raises(SourceError, match=text):
             _with_times(recording, tmp_path / "bad.zarr", bad)
         assert not (tmp_path / "bad.zarr").exists()
+
+
+def test_the_growth_maps_scale_bar_is_a_round_length_near_a_fifth_of_the_image():
+    """The scale bar: at 420 mm and f = 650 px a pixel is 0.646 mm, a fifth of 256 px is
+    33 mm, the bar 20 mm (31 px); 1, 2 or 5 times a power of ten, never more than the
+    fifth nor less than 0.4 of it."""
+    from gridflow.pipeline.growth import scale_bar_length
+
+    assert scale_bar_length(420.0, 650.0, 256) == pytest.approx((20.0, 20.0 / (420 / 650)))
+    for depth, f, w in ((100.0, 1000.0, 512), (3.3, 5000.0, 64), (2e4, 80.0, 1000)):
+        length, px = scale_bar_length(depth, f, w)
+        fifth = w * depth / f / 5
+        mant = length / 10 ** np.floor(np.log10(length) + 1e-12)
+        assert round(mant, 9) in (1.0, 2.0, 5.0) and 0.4 * fifth <= length <= fifth
+        assert px == pytest.approx(length * f / depth)

@@ -15,11 +15,18 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["object_window", "segment_object", "MIN_OBJECT_WEIGHT"]
+__all__ = ["object_window", "segment_object", "MIN_OBJECT_WEIGHT", "erosion_reach"]
 
 # the least fraction of the window's weight on the object for a masked pixel to be
 # estimated: a window that sees less of it has too few samples (a thin tip, a stalk)
 MIN_OBJECT_WEIGHT = 0.25
+
+
+def erosion_reach(filter_radius: int) -> int:
+    """Pixels either side whose mask decides a pixel's eroded mask (:func:`object_window`):
+    a row band cut from a mask needs this many more rows of it than its estimate's halo,
+    so that the cut's edge does not erode its rows."""
+    return filter_radius + 2
 
 
 def object_window(mask: np.ndarray, kernel: np.ndarray, filter_radius: int):
@@ -38,15 +45,18 @@ def object_window(mask: np.ndarray, kernel: np.ndarray, filter_radius: int):
     -------
     used : ndarray of float, shape (H, W)
         1 on the samples a window uses: the mask eroded by the filters' radius plus 2 px
-        (the derivative filters read that far; the other cameras see the edge shifted by
-        the disparity, the other frames by the motion, about a pixel each), 0 elsewhere.
+        in every direction (a square: the filters' square footprint, diagonals
+        included; the derivative filters read that far, the other cameras see the edge
+        shifted by the disparity, the other frames by the motion, about a pixel each), 0
+        elsewhere.
     weight : ndarray, shape (H, W)
         The fraction of each pixel's window weight on those samples.
     estimated : ndarray of bool, shape (H, W)
         The pixels estimated: on the used samples, with at least
         :data:`MIN_OBJECT_WEIGHT` of the window's weight on them.
     """
-    used = ndimage.binary_erosion(mask, iterations=filter_radius + 2)
+    used = ndimage.binary_erosion(mask, structure=np.ones((3, 3), bool),
+                                  iterations=erosion_reach(filter_radius))
     u = used.astype(float)
     weight = ndimage.correlate1d(ndimage.correlate1d(u, kernel, axis=1, mode="constant"),
                                  kernel, axis=0, mode="constant")

@@ -65,8 +65,14 @@ class SinglePass:
     @property
     def halo(self) -> int:
         from gridflow.estimator import band_halo
+        from gridflow.estimator.filters import get_filter_pair
+        from gridflow.estimator.masks import erosion_reach
 
-        return band_halo(self.estimator_settings)
+        s = self.estimator_settings
+        # a band's mask is cut from the image's: its edge must not erode the rows the
+        # band's windows read
+        extra = 0 if self.mask is None else erosion_reach(get_filter_pair(s.filters).radius)
+        return band_halo(s) + extra
 
     @property
     def border(self) -> int:

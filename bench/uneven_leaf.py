@@ -106,8 +106,8 @@ def run(cache="work/cube", *, progress: bool = True):
         Per step and region (:func:`score_step`), with ``step, frame``.
     snapshot : dict
         What the figure draws: the centre image, the truth and estimate at the middle
-        step, and the kymographs (``rows``, ``frames``, ``est``, ``truth``: shape
-        (steps, rows), per frame, NaN where a row has no inner pixel).
+        step, and per method the kymographs (``est``, ``tru``: shape (steps, rows), per
+        frame, NaN where a row has no estimate) at the steps' ``frames``.
     """
     from gridflow.estimator import DEFAULTS
     from gridflow.pipeline import RunOptions, estimate
@@ -123,7 +123,8 @@ def run(cache="work/cube", *, progress: bool = True):
         rec = Path(tmp) / "leaf.zarr"
         for line in make_leaf_recording(rec, sc, cache=cache, progress=progress):
             print(line, file=sys.stderr)
-        rows, snap, seconds = [], {"growth": {}, "est": {}}, {}
+        rows, snap, seconds = [], {"growth": {}, "est": {}, "tru": {}}, {}
+        truths = {}                     # per frame, shared by the methods
         for method, (settings, extra) in METHODS.items():
             maps = Path(tmp) / f"maps-{len(seconds)}.zarr"
             t0 = time.perf_counter()
@@ -147,7 +148,9 @@ def run(cache="work/cube", *, progress: bool = True):
             est_k, tru_k, middle = [], [], len(frames) // 2
             for i, k in zip(steps, frames):
                 growth = np.asarray(g["growth"][i], np.float64)
-                truth = uneven_leaf_truth(sc, margin=0.0, frame=int(k))
+                if k not in truths:
+                    truths[k] = uneven_leaf_truth(sc, margin=0.0, frame=int(k))
+                truth = truths[k]
                 masks = region_masks(truth, interior, reach, sc.leaf_length)
                 for r in score_step(growth, truth, masks):
                     rows.append({"method": method, "step": int(i), "frame": int(k), **r})
@@ -161,11 +164,12 @@ def run(cache="work/cube", *, progress: bool = True):
                 est_k.append(e_line)
                 tru_k.append(t_line)
                 if k == snap["frames"][middle]:
-                    snap.update(image=open_source(rec).read(int(k), int(k) + 1)[0, 2, 2],
-                                truth=truth, masks=masks, frame=int(k))
+                    if method == "default":
+                        snap.update(image=open_source(rec).read(int(k), int(k) + 1)[0, 2, 2],
+                                    truth=truth, masks=masks, frame=int(k))
                     snap["growth"][method] = growth
             snap["est"][method] = np.array(est_k)
-            snap["tru_" + method] = np.array(tru_k)
+            snap["tru"][method] = np.array(tru_k)
     snap.update(frame_interval=sc.frame_interval, seconds=seconds, scene=sc)
     return rows, snap
 
@@ -198,7 +202,7 @@ def fig_uneven_leaf(snap: dict):
             ax.set_title(title)
         fig.colorbar(im, ax=axes[1:4], shrink=0.8,
                      label="growth, % area per hour (grey: no estimate)")
-        est, tru = snap["est"]["mask auto"], snap["tru_mask auto"]
+        est, tru = snap["est"]["mask auto"], snap["tru"]["mask auto"]
         rows = np.flatnonzero(np.isfinite(tru).any(0))
         f0, f1 = snap["frames"][0], snap["frames"][-1]
         extent = (f0 - 0.5, f1 + 0.5, rows[-1] + 0.5, rows[0] - 0.5)

@@ -380,10 +380,14 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
 
     interior = np.zeros((H, W), dtype=bool)
     interior[halo:H - halo, halo:W - halo] = True
-    masked = object_window(mask, tplan.kernels[0], plan.spatial.radius) if mask is not None \
-        else None
-    if masked is not None:
-        interior &= masked[2]
+    # with a mask: the samples the windows use, each window's weight on them (at least
+    # MIN_OBJECT_WEIGHT where estimated)
+    used_samples = window_weight = None
+    if mask is not None:
+        used_samples, window_weight, estimated = object_window(mask, tplan.kernels[0],
+                                                               plan.spatial.radius)
+        interior &= estimated
+        window_weight = np.maximum(window_weight, MIN_OBJECT_WEIGHT)
 
     def nan_border(names):
         # the interior is written band by band below; only the border needs its NaN.  One
@@ -409,21 +413,21 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     for r0 in range(halo, H - halo, band):
         r1 = min(r0 + band, H - halo)
         signals = backend.signals(vol, splan, slice(r0 - halo, r1 + halo))
-        if masked is not None:
+        if mask is not None:
             # normalized convolution: only the object's samples enter the window's sums
-            m = masked[0][r0 - halo:r1 + halo]
+            m = used_samples[r0 - halo:r1 + halo]
             signals = {k: v * m for k, v in signals.items()}
         J = backend.tensor(signals, tplan)                # the band's interior pixels
         del signals
         if ext != rows:
             J = zoom_corrected(J, rows)
-        n_px = n_eff
-        if masked is not None:
+        n_px = np.broadcast_to(n_eff, (r1 - r0) * cols.size)
+        if mask is not None:
             # ... and the sums become means over them; the noise averages over the
             # fraction of the window on the object (docs/model.md, *Masks*)
-            frac = masked[1][r0:r1, halo:W - halo].ravel()
-            J = scaled(J, 1.0 / np.maximum(frac, MIN_OBJECT_WEIGHT))
-            n_px = n_eff * np.maximum(frac, MIN_OBJECT_WEIGHT)
+            frac = window_weight[r0:r1, halo:W - halo].ravel()
+            J = scaled(J, 1.0 / frac)
+            n_px = n_eff * frac
         yy, xx = np.meshgrid(np.arange(r0, r1), cols, indexing="ij")
         x0 = (xx - plan.cx).ravel().astype(float)
         y0 = (yy - plan.cy).ravel().astype(float)
@@ -435,8 +439,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
                 keep = {} if m in pool else None
                 res = disentangle(P[px], g[px], mdl[m], x0[px], y0[px], plan.focal_length,
                                   plan.spacing, slant_correction=s.slant_correction,
-                                  combine=s.combine,
-                                  residual=err[px] / (n_px if np.ndim(n_px) == 0 else n_px[px]),
+                                  combine=s.combine, residual=err[px] / n_px[px],
                                   pooling_inputs=keep)
                 if keep:
                     pool[m][:, r0 + a:r0 + b, halo:W - halo] = np.concatenate(
@@ -452,7 +455,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     if pool:
         Sy, Sx = vol.shape[1:3]
         textured = textured_windows(vol[plan.k_ref, Sy // 2, Sx // 2], s.window // 2,
-                                    None if masked is None else masked[0])
+                                    used_samples)
     for m, kept in pool.items():
         out[m].update(_pooled(kept, interior, textured, sigma_pool, plan, s.sigma))
         # a pixel that kept its own rates is the per-pixel solution: its growth_err
@@ -464,12 +467,12 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
             # first-order growth_err is its standard deviation
             out[m]["pooled"][interior] = 0.0
             out[m]["growth_sd"][interior] = out[m]["growth_err"][interior]
-    if masked is not None:
+    if mask is not None:
         for m in models:
             for a in out[m].values():
                 a[~interior] = np.nan
     # "masked" only where a mask was given: unmasked estimates record what they did
-    used = dict(s.as_dict(), **({"masked": True} if masked is not None else {}),
+    used = dict(s.as_dict(), **({"masked": True} if mask is not None else {}),
                 filters_xy=plan.spatial.name, filters_sx=plan.cam_x.name,
                 filters_sy=plan.cam_y.name if plan.cam_y else None,
                 filters_t=plan.time.name if plan.time else None,

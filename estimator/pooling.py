@@ -78,7 +78,7 @@ def _block(sigma: float) -> int:
 def _radius(sigma: float) -> int:
     f = _block(sigma)
     if f == 1:
-        return _PASSES * (_box_width(sigma) - 1) // 2
+        return bell_radius(sigma)
     # the coarse boxes' reach in blocks, the block itself and the interpolation's next node
     return f * (_PASSES * (_box_width(sigma / f) - 1) // 2 + 2)
 

@@ -103,7 +103,6 @@ def growth_profiles(maps, *, axis: str = "x", quantity: str = "growth"):
     """
     import pandas as pd
 
-
     if axis not in ("x", "y"):
         raise UsageError(f"--axis must be x or y, got {axis!r}")
     store = _open_maps(maps, quantity)
@@ -256,8 +255,8 @@ def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -
     interior = np.asarray(store.group["interior"][:], dtype=bool)
     per_frame = 100.0          # shown in % per frame
     imgs = []
-    for f in chosen:
-        i = int(table.loc[table["frame"] == f, "step"].iloc[0])
+    steps = [int(table.loc[table["frame"] == f, "step"].iloc[0]) for f in chosen]
+    for i in steps:
         m = np.asarray(store.group[quantity][i], dtype=float) * per_frame
         imgs.append(np.where(interior, m, np.nan))
     # a colour scale from the 2nd to the 98th percentile: the few pixels where the
@@ -269,12 +268,11 @@ def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -
     label = (lambda f: f"frame {f} ({hours[f]:.1f} h)") if timed else (lambda f: f"frame {f}")
     fig, axes = plt.subplots(1, len(chosen), figsize=(2.6 * len(chosen) + 0.8, 3.0),
                              squeeze=False, constrained_layout=True)
-    for ax, f, m in zip(axes[0], chosen, imgs):
+    for ax, f, i, m in zip(axes[0], chosen, steps, imgs):
         im = ax.imshow(m, vmin=lo, vmax=hi, cmap="viridis")
         ax.set_title(label(f), fontsize=9)
         ax.set_xticks([])
         ax.set_yticks([])
-        i = int(table.loc[table["frame"] == f, "step"].iloc[0])
         _scale_bar(ax, store, i, interior & np.isfinite(m))
     fig.colorbar(im, ax=axes[0], shrink=0.85, label="growth, % area per frame")
     fig.suptitle(f"Growth maps ({maps})", fontsize=10)

@@ -153,8 +153,6 @@ class LeafScene:
 
     def sdl(self, k: int, i: int, j: int) -> str:
         """POV-Ray scene text for frame ``k``, camera ``(i, j)``."""
-        import vapory as vp
-
         t = k - self.ref_frame
         A, b = self.transform(t)
         M = POV_FLIP @ A @ POV_FLIP
@@ -173,17 +171,24 @@ class LeafScene:
                    len(pts), ", ".join(f"<{u:.9g}, {-y:.9g}>" for u, y in pts),
                    self.texture_scale, self.ambient, self.diffuse,
                    ", ".join(f"{x:.12g}" for x in m))
-        cam = self.camera(i, j)
-        camera = vp.Camera("perspective", "location", pov_vec(cam),
+        return self._scene_sdl(k, i, j, poly)
+
+    def _scene_sdl(self, k: int, i: int, j: int, leaf: str) -> str:
+        """The scene of frame ``k`` seen by camera ``(i, j)`` (camera, spotlight on the
+        leaf's centre, black background) with the ``leaf`` object's text."""
+        import vapory as vp
+
+        t = k - self.ref_frame
+        camera = vp.Camera("perspective", "location", pov_vec(self.camera(i, j)),
                            "right", [self.width, 0, 0], "up", [0, self.height, 0],
                            "direction", pov_vec([0.0, 0.0, self.f]))
-        c = pov_vec(self.center(t))
         light = vp.LightSource(pov_vec(self.light(k)), "rgb", self.spot_power,
-                               "spotlight", "point_at", c, "radius", self.spot_radius_deg,
+                               "spotlight", "point_at", pov_vec(self.center(t)),
+                               "radius", self.spot_radius_deg,
                                "falloff", self.spot_falloff_deg)
         sdl = vp.Scene(camera, objects=[vp.Background("rgb", 0), light],
                        global_settings=["assumed_gamma 1.0", "ambient_light rgb 1"])
-        return "#version 3.7;\n" + str(sdl) + "\n" + poly + "\n"
+        return "#version 3.7;\n" + str(sdl) + "\n" + leaf + "\n"
 
     def truth(self) -> dict:
         return leaf_truth(self)
@@ -421,8 +426,6 @@ class UnevenLeafRecording(LeafRecording):
     def sdl(self, k: int, i: int, j: int) -> str:
         """POV-Ray scene text for frame ``k``, camera ``(i, j)``: the leaf as a ``mesh2``
         of material points at their frame-``k`` positions, uv-mapped texture."""
-        import vapory as vp
-
         t = float(k - self.ref_frame)
         ns, nc = 240, 24                       # along (0.6 mm) and across the leaf
         s = np.linspace(0.0, 1.0, ns + 1)
@@ -448,17 +451,7 @@ class UnevenLeafRecording(LeafRecording):
                 "[1 rgb 0.95] } scale %g } finish { ambient %g diffuse %g } }\n}" % (
                     len(P), vec(P), len(U), vec(np.stack([U, W], axis=1)),
                     len(faces), vec(faces), self.texture_scale, self.ambient, self.diffuse))
-        cam = self.camera(i, j)
-        camera = vp.Camera("perspective", "location", pov_vec(cam),
-                           "right", [self.width, 0, 0], "up", [0, self.height, 0],
-                           "direction", pov_vec([0.0, 0.0, self.f]))
-        light = vp.LightSource(pov_vec(self.light(k)), "rgb", self.spot_power,
-                               "spotlight", "point_at", pov_vec(self.center(t)),
-                               "radius", self.spot_radius_deg,
-                               "falloff", self.spot_falloff_deg)
-        sdl = vp.Scene(camera, objects=[vp.Background("rgb", 0), light],
-                       global_settings=["assumed_gamma 1.0", "ambient_light rgb 1"])
-        return "#version 3.7;\n" + str(sdl) + "\n" + mesh + "\n"
+        return self._scene_sdl(k, i, j, mesh)
 
     def truth_at(self, k: int) -> dict[str, np.ndarray]:
         """Truth of frame ``k`` at the centre camera, each shape (H, W): ``Z``, ``Ux``,

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import signals as sig
+from .disentangle import solve_affine
 from .models import Model
 from .nullspace import NullSpace, null_space
 from .tensor import DenseTensor, PackedTensor, structure_tensor, structure_tensor_reference
@@ -103,9 +104,13 @@ class Backend:
         :class:`~estimator.tensor.PackedTensor`.
     ``null_space(J, model)``
         The model's :class:`~estimator.nullspace.NullSpace` from its sub-block of J.
+    ``solve_affine(obs, Z, Zx, Zy, x0, y0, f, var_obs=None, sensitivity=False)``
+        The affine model's per-pixel 9 x 9 systems
+        (:func:`estimator.disentangle.solve_affine`).
     """
 
     name = "numpy"
+    solve_affine = staticmethod(solve_affine)
 
     def scan(self, volume: np.ndarray):
         return None
@@ -172,16 +177,18 @@ class FFTBackend(Backend):
 class NumbaBackend(Backend):
     """Numba kernels for the input scan, the camera sums, the x/y filtering and the FFT
     tensor's products (:mod:`estimator._kernels`), ``scipy.fft`` for the transforms, and
-    the numba null-space solver (:mod:`estimator._solver`)."""
+    the numba null-space solver (:mod:`estimator._solver`) and affine solve
+    (:mod:`estimator._affine`)."""
 
     name = "numba"
 
     def __init__(self):
-        from . import _kernels, _solver, jit
+        from . import _affine, _kernels, _solver, jit
 
         # before the first kernel is called: compiling them takes 20-40 s the first time
-        jit.announce_compilation((_kernels, _solver))
+        jit.announce_compilation((_kernels, _solver, _affine))
         self._kernels, self._solver = _kernels, _solver
+        self.solve_affine = _affine.solve_affine_kernel
         import numba
 
         self.threads = numba.get_num_threads()

@@ -40,8 +40,9 @@ def disentangles(motion: MotionModel) -> Callable[[Callable], Callable]:
     """Register the decorated function as the disentangling of ``motion``.
 
     The function is called as ``fn(P, g, model, plane, x0, y0, f, spacing,
-    slant_correction, combine2, residual)`` (see :func:`_translation`) and returns the
-    maps of ``motion.outputs``.
+    slant_correction, combine2, residual, solver)`` (see :func:`_translation`; ``solver``
+    solves the affine model's systems, :func:`solve_affine` or a kernel with its
+    signature) and returns the maps of ``motion.outputs``.
     """
     def register(fn: Callable) -> Callable:
         _DISENTANGLING[motion] = fn
@@ -59,7 +60,8 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
                 slant_correction: bool = True,
                 combine: str = "inverse_variance",
                 residual: np.ndarray | None = None,
-                pooling_inputs: dict | None = None) -> dict[str, np.ndarray]:
+                pooling_inputs: dict | None = None,
+                solver: Callable | None = None) -> dict[str, np.ndarray]:
     """Parameters in world units from the parameter vectors (Sec. 3, steps 4-5).
 
     Parameters
@@ -87,6 +89,10 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
         Filled, for the affine model, with what pooling its rates needs
         (:mod:`estimator.pooling`): ``"obs"`` (the nine observations, shape (9, N)) and
         ``"plane"`` (``v, z_x, z_y``, shape (3, N)).
+    solver : callable, optional
+        Solves the affine model's per-pixel systems, with :func:`solve_affine`'s
+        signature and results (the default); the numba backend passes its kernel
+        (:mod:`estimator._affine`).
 
     Returns
     -------
@@ -126,7 +132,7 @@ def disentangle(P: np.ndarray, g: np.ndarray, model: Model, x0: np.ndarray, y0: 
         raise LookupError(f"motion model {model.motion.name!r} has no disentangling: "
                           "register one with estimator.disentangle.disentangles") from None
     maps = motion(P, g, model, plane, x0, y0, f, spacing, slant_correction, combine2,
-                  residual)
+                  residual, solver or solve_affine)
     for key in [k for k in maps if k.startswith("_")]:
         extra = maps.pop(key)
         if pooling_inputs is not None:
@@ -159,7 +165,7 @@ def _from_ds_columns(P, g, model: Model, spacing, combine2):
 
 @disentangles(TRANSLATION)
 def _translation(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, combine2,
-                 residual=None):
+                 residual=None, solver=None):
     """The paper's motion model, from the dt column: the divergence ``u_z`` twice (rows 3
     and 6, combined), then the image translation ``u_x, u_y``; in world units by Eq. 16
     inverted: ``U_x = Z u_x / f``, ``U_y = Z u_y / f``, ``U_z = -Z u_z``."""
@@ -303,7 +309,7 @@ _AFFINE_RATE_ROWS = (("v_t", "tIx", "tIy"), ("zx_t", "tIxDx", "tIyDx"),
 
 @disentangles(AFFINE)
 def _affine(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, combine2,
-            residual=None):
+            residual=None, solver=None):
     """Affine motion: the flow and its gradient from the dt column, the rates of the
     disparity and the projected slopes from the ``t I_x``-rows of the ds columns (each
     twice on a 2-D grid, combined), and the 9 x 9 linear system of
@@ -338,7 +344,7 @@ def _affine(P, g, model: Model, plane, x0, y0, f, spacing, slant_correction, com
     if residual is not None:
         var_obs = np.stack([norm2[:, -1] * g[:, i(r)] for r in _AFFINE_DT_ROWS]
                            + [var[q] for q, _, _ in _AFFINE_RATE_ROWS]).T * residual[:, None]
-    out = solve_affine(obs, Z, Zx, Zy, x0, y0, f, var_obs)
+    out = (solver or solve_affine)(obs, Z, Zx, Zy, x0, y0, f, var_obs)
     # what pooling the rates over the leaf needs (estimator.pooling): the six flow
     # observations and the per-pixel projected slopes and rates, kept by the driver
     out["_obs"] = obs

@@ -440,7 +440,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
                 res = disentangle(P[px], g[px], mdl[m], x0[px], y0[px], plan.focal_length,
                                   plan.spacing, slant_correction=s.slant_correction,
                                   combine=s.combine, residual=err[px] / n_px[px],
-                                  pooling_inputs=keep)
+                                  pooling_inputs=keep, solver=backend.solve_affine)
                 if keep:
                     pool[m][:, r0 + a:r0 + b, halo:W - halo] = np.concatenate(
                         [keep["obs"], keep["plane"], keep["var_vt"][None]]
@@ -457,7 +457,8 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         textured = textured_windows(vol[plan.k_ref, Sy // 2, Sx // 2], s.window // 2,
                                     used_samples)
     for m, kept in pool.items():
-        out[m].update(_pooled(kept, interior, textured, sigma_pool, plan, s.sigma))
+        out[m].update(_pooled(kept, interior, textured, sigma_pool, plan, s.sigma,
+                              backend.solve_affine))
         # a pixel that kept its own rates is the per-pixel solution: its growth_err
         alone = out[m]["pooled"] == 0.0
         out[m]["growth_sd"][alone] = out[m]["growth_err"][alone]
@@ -520,7 +521,7 @@ def _growth_sd(growth, sens, own_rates, valid, fitted, weights, used, sigma,
 
 
 def _pooled(kept: np.ndarray, interior: np.ndarray, textured: np.ndarray, sigma: float,
-            plan: Plan, window_sigma: float) -> dict:
+            plan: Plan, window_sigma: float, solver=solve_affine) -> dict:
     """The affine model's motion with its depth motion and tilt rates pooled
     (:func:`estimator.pooling.pool_rates`) and each pixel's 9 x 9 system solved again
     with them (``docs/model.md``, *Pooled depth rates*).
@@ -532,7 +533,8 @@ def _pooled(kept: np.ndarray, interior: np.ndarray, textured: np.ndarray, sigma:
     rotation, Zx_t, Zy_t``) and ``pooled``: 1 where the pooled rates were used, 0 where
     the pixel kept its own, NaN outside the interior; ``growth_sd``
     (:func:`_growth_sd`).  ``Uz_err``, ``growth_err``, ``rotation_err`` stay those of the
-    per-pixel solution."""
+    per-pixel solution.  ``solver`` solves the systems (:func:`solve_affine`, or the
+    numba backend's kernel with its signature)."""
     obs, (v, zx, zy, var_vt) = kept[:9], kept[9:]
     valid = interior & np.isfinite(kept).all(0)
     # each pixel weighted by the inverse of its v_t's first-order variance: a pixel whose
@@ -562,7 +564,7 @@ def _pooled(kept: np.ndarray, interior: np.ndarray, textured: np.ndarray, sigma:
     # enough for the allocator to reuse (as in estimate_models); one call when empty
     chunks = [slice(a, a + _DISENTANGLE_PIXELS)
               for a in range(0, Z.size, _DISENTANGLE_PIXELS)] or [slice(None)]
-    parts = [solve_affine(o[:, c], Z[c], Zx[c], Zy[c], x0[c], y0[c], f, sensitivity=True)
+    parts = [solver(o[:, c], Z[c], Zx[c], Zy[c], x0[c], y0[c], f, sensitivity=True)
              for c in chunks]
     res = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     sens = res.pop("growth_sensitivity")

@@ -20,13 +20,15 @@ __all__ = ["compile_kernels"]
 
 def compile_kernels() -> None:
     """Estimate a tiny random volume, just large enough for the numba backend, in float64
-    and float32 (the input kernels are compiled per dtype)."""
+    and float32 (the input kernels are compiled per dtype), and once with the affine
+    motion model (its solve's kernel)."""
     side = int(np.ceil(np.sqrt(NUMBA_MIN_PIXELS)))
     rng = np.random.default_rng(0)
     volume = rng.random((5, 3, 3, side, side))
     for dtype in (np.float64, np.float32):
         estimate(volume.astype(dtype), 100.0, (0.05, 0.05), model="full", sigma=2.0,
                  window=9)
+    estimate(volume, 100.0, (0.05, 0.05), model="full", motion="affine", sigma=2.0, window=9)
 
 
 if __name__ == "__main__":

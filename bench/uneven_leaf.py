@@ -111,6 +111,7 @@ def run(cache="work/cube", *, progress: bool = True):
     """
     from gridflow.estimator import DEFAULTS
     from gridflow.pipeline import RunOptions, estimate
+    from gridflow.pipeline.growth import confident
     from gridflow.recording import MapStore
     from gridflow.scenes import uneven_leaf_truth
     from gridflow.sources import open_source
@@ -148,12 +149,19 @@ def run(cache="work/cube", *, progress: bool = True):
             est_k, tru_k, middle = [], [], len(frames) // 2
             for i, k in zip(steps, frames):
                 growth = np.asarray(g["growth"][i], np.float64)
+                sd = np.asarray(g["growth_sd"][i], np.float64)
                 if k not in truths:
                     truths[k] = uneven_leaf_truth(sc, margin=0.0, frame=int(k))
                 truth = truths[k]
                 masks = region_masks(truth, interior, reach, sc.leaf_length)
-                for r in score_step(growth, truth, masks):
-                    rows.append({"method": method, "step": int(i), "frame": int(k), **r})
+                # every pixel, and those gridflow growth keeps (confident: growth_sd at
+                # most SD_LIMIT times the step's median)
+                sure = confident(sd, interior & np.isfinite(growth))
+                for pixels, m in (("all", growth), ("confident", np.where(sure, growth,
+                                                                          np.nan))):
+                    for r in score_step(m, truth, masks):
+                        rows.append({"method": method, "pixels": pixels, "step": int(i),
+                                     "frame": int(k), **r})
                 # the kymograph over the leaf's pixels with an estimate
                 on = np.asarray(truth["leaf"], bool) & interior & np.isfinite(growth)
                 e_line = np.full(sc.height, np.nan)
@@ -226,21 +234,28 @@ def fig_uneven_leaf(snap: dict):
 def table(rows) -> str:
     """Markdown: per method and region, over the steps, the median truth, the median of
     the steps' per-pixel median relative errors and the worst step's; the profile's
-    correlation and slope (inner pixels)."""
+    correlation and slope (inner pixels); and over the confident pixels only (those
+    ``gridflow growth`` keeps) the share of the region's pixels kept and their error."""
     import pandas as pd
+
+    from gridflow.pipeline.growth import SD_LIMIT
 
     df = pd.DataFrame(rows)
     out = ["| method | region | pixels per step | true growth, per frame | per-pixel median "
-           "rel. error: median over steps (worst) | profile corr. / slope |",
-           "|---|---|---|---|---|---|"]
+           "rel. error: median over steps (worst) | profile corr. / slope | confident "
+           f"pixels (growth_sd <= {SD_LIMIT:g} x median): kept, error (worst) |",
+           "|---|---|---|---|---|---|---|"]
     for method in METHODS:
         for name in REGIONS:
-            d = df[(df.method == method) & (df.region == name)]
+            sel = (df.method == method) & (df.region == name)
+            d, c = df[sel & (df.pixels == "all")], df[sel & (df.pixels == "confident")]
             prof = (f"{d.profile_corr.median():.3f} / {d.profile_slope.median():.2f}"
                     if name == "inner" else "")
+            kept = c.n_pixels.sum() / max(d.n_pixels.sum(), 1)
             out.append(f"| {method} | {name} | {d.n_pixels.median():.0f} | "
                        f"{d.truth_median.median():.3g} | {d.median_rel_error.median():.3f} "
-                       f"({d.median_rel_error.max():.3f}) | {prof} |")
+                       f"({d.median_rel_error.max():.3f}) | {prof} | {kept:.0%}, "
+                       f"{c.median_rel_error.median():.3f} ({c.median_rel_error.max():.3f}) |")
     return "\n".join(out)
 
 

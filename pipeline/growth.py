@@ -1,7 +1,8 @@
-"""What a grower reads from a map series: the growth per step over the leaf (median,
-mean, spread) and, with a recording that has growth truth, its error; the growth maps at
-chosen frames and the growth against time as figures.  :func:`growth_report` is what
-``gridflow growth`` does.
+"""What a grower reads from a map series: the growth per leaf and step (median, mean,
+spread, pixels used) and, with a recording that has growth truth, its error; the growth
+maps at chosen frames, the growth against time and the kymograph as figures.  Each is
+over the pixels the estimator is confident of (:func:`confident`).
+:func:`growth_report` is what ``gridflow growth`` does.
 """
 
 from __future__ import annotations
@@ -15,23 +16,86 @@ import numpy as np
 from gridflow.errors import UsageError
 
 __all__ = ["growth_table", "growth_profiles", "draw_growth", "draw_kymograph",
-           "growth_report", "GrowthReport"]
+           "growth_report", "GrowthReport", "confident", "leaves", "SD_LIMIT"]
 
 
-def growth_table(maps, truth=None, *, quantity: str = "growth"):
-    """Per step of the map series ``maps``: the mean, median, 10th and 90th percentile of
-    ``quantity`` over the interior, and with a recording ``truth`` that has it, the truth's
-    mean and Q_rel (Eq. 22); with a truth, every column is over the interior's pixels where
-    the truth is given (a scene's truth is NaN off the object).  Steps not done are left
-    out.
+# a pixel whose growth_sd exceeds this many times the step's median growth_sd is left out
+# of the report's statistics, profiles and maps (gridflow growth --sd-limit)
+SD_LIMIT = 3.0
+# connected parts of the maps smaller than this fraction of the largest are not leaves
+MIN_LEAF_FRACTION = 0.05
+
+
+def confident(sd: np.ndarray, where: np.ndarray, limit: float = SD_LIMIT) -> np.ndarray:
+    """The pixels of ``where`` (bool, shape (H, W)) whose standard deviation ``sd`` (shape
+    (H, W)) is at most ``limit`` times its median over ``where``: the few pixels the
+    estimator itself finds far less certain than the rest of the leaf (its edge,
+    texture-poor spots) are left out.  ``limit`` 0 (or infinite) keeps every pixel of
+    ``where``; so does a map series without ``growth_sd``."""
+    if not limit or not np.isfinite(limit) or sd is None:
+        return where
+    ok = where & np.isfinite(sd)
+    if not ok.any():
+        return where
+    return ok & (sd <= limit * np.median(sd[ok]))
+
+
+def leaves(maps, quantity: str = "growth"):
+    """The leaves of a map series: the connected parts (8-neighbours) of the interior's
+    pixels that have a value in any done step, numbered 1, 2, ... in the order of their
+    first pixel (row by row); parts smaller than :data:`MIN_LEAF_FRACTION` of the largest
+    are left out (label 0).  Without a mask the interior is one leaf.
+
+    Returns
+    -------
+    labels : ndarray of int, shape (H, W)
+    n_fragments : int
+        The small parts left out.
+    """
+    from scipy import ndimage
+
+    store = _open_maps(maps, quantity)
+    g = store.group
+    seen = np.zeros(g["interior"].shape, dtype=bool)
+    for i in np.flatnonzero(store.done()):
+        seen |= np.isfinite(np.asarray(g[quantity][i]))
+    seen &= np.asarray(g["interior"][:], dtype=bool)
+    labels, n = ndimage.label(seen, structure=np.ones((3, 3)))
+    if n == 0:
+        return labels, 0
+    size = np.bincount(labels.ravel(), minlength=n + 1)[1:]
+    big = np.flatnonzero(size >= MIN_LEAF_FRACTION * size.max()) + 1
+    renumber = np.zeros(n + 1, dtype=int)
+    renumber[big] = np.arange(1, big.size + 1)
+    return renumber[labels], int(n - big.size)
+
+
+def growth_table(maps, truth=None, *, quantity: str = "growth", sd_limit: float = SD_LIMIT,
+                 labels: np.ndarray | None = None):
+    """Per leaf and step of the map series ``maps``: the mean, median, 10th and 90th
+    percentile of ``quantity`` over the leaf's confident pixels, and with a recording
+    ``truth`` that has it, the truth's mean and Q_rel (Eq. 22); with a truth, every column
+    is over the pixels where the truth is given (a scene's truth is NaN off the object).
+    Steps not done are left out.
+
+    A leaf is a connected part of the maps (:func:`leaves`; one, the whole interior,
+    without a mask); its confident pixels are those whose ``growth_sd`` is at most
+    ``sd_limit`` times the step's median over the leaf (:func:`confident`; 0 keeps all).
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (H, W), optional
+        The leaves (:func:`leaves`, computed when not given).
 
     Returns
     -------
     pandas.DataFrame
-        Columns ``step, frame, time_s, mean, median, median_per_hour, p10, p90,
-        n_pixels`` (and ``truth, q_rel``); growth per frame, and the median per hour from
-        each step's frame interval where the store knows it (the source's time stamps or
-        its frame interval; NaN otherwise).
+        Columns ``leaf, step, frame, time_s, mean, median, median_per_hour, p10, p90,
+        n_pixels, n_uncertain`` (and ``truth, q_rel``); growth per frame, and the median
+        per hour from each step's frame interval where the store knows it (the source's
+        time stamps or its frame interval; NaN otherwise); ``n_pixels`` the pixels used,
+        ``n_uncertain`` those left out for their ``growth_sd``.  A PlantCV-style
+        observations table.
     """
     import pandas as pd
 
@@ -48,32 +112,39 @@ def growth_table(maps, truth=None, *, quantity: str = "growth"):
     interior = np.asarray(g["interior"][:], dtype=bool)
     if rec is not None:
         _check_truth(maps, store, truth, rec, interior.shape, frames)
+    if labels is None:
+        labels = leaves(maps, quantity)[0]
+    has_sd = "growth_sd" in store.quantities
     times, intervals = store.step_times()
     rows = []
     for i in np.flatnonzero(done):
         m = np.asarray(g[quantity][i], dtype=np.float64)
-        mask = interior
-        if rec is not None:
-            # where the truth is given (a scene's truth is NaN off the object and near its
-            # edge): the statistics and Q_rel over the same pixels
-            t = rec.truth(int(frames[i]), names=(quantity,))[quantity]
-            mask = interior & np.isfinite(t)
-        v = m[mask & np.isfinite(m)]
-        row = {"step": int(i), "frame": int(frames[i]),
-               "time_s": float(times[i]) if times is not None else np.nan,
-               "mean": float(v.mean()) if v.size else np.nan,
-               "median": float(np.median(v)) if v.size else np.nan,
-               "median_per_hour": (float(np.median(v)) * 3600.0 / intervals[i]
-                                   if v.size and intervals is not None else np.nan),
-               "p10": float(np.percentile(v, 10)) if v.size else np.nan,
-               "p90": float(np.percentile(v, 90)) if v.size else np.nan,
-               "n_pixels": int(v.size)}
-        if rec is not None:
-            row["truth"] = float(t[mask].mean()) if mask.any() else np.nan
-            row["q_rel"] = q_rel(m, t, mask)
-        rows.append(row)
+        sd = np.asarray(g["growth_sd"][i], dtype=np.float64) if has_sd else None
+        t = rec.truth(int(frames[i]), names=(quantity,))[quantity] if rec is not None else None
+        for leaf in range(1, int(labels.max()) + 1):
+            where = (labels == leaf) & np.isfinite(m)
+            if t is not None:
+                # where the truth is given (a scene's truth is NaN off the object and near
+                # its edge): the statistics and Q_rel over the same pixels
+                where &= np.isfinite(t)
+            kept = confident(sd, where, sd_limit)
+            v = m[kept]
+            row = {"leaf": leaf, "step": int(i), "frame": int(frames[i]),
+                   "time_s": float(times[i]) if times is not None else np.nan,
+                   "mean": float(v.mean()) if v.size else np.nan,
+                   "median": float(np.median(v)) if v.size else np.nan,
+                   "median_per_hour": (float(np.median(v)) * 3600.0 / intervals[i]
+                                       if v.size and intervals is not None else np.nan),
+                   "p10": float(np.percentile(v, 10)) if v.size else np.nan,
+                   "p90": float(np.percentile(v, 90)) if v.size else np.nan,
+                   "n_pixels": int(v.size), "n_uncertain": int(where.sum() - v.size)}
+            if t is not None:
+                row["truth"] = float(t[kept].mean()) if kept.any() else np.nan
+                row["q_rel"] = q_rel(m, t, kept)
+            rows.append(row)
     if not rows:
-        raise UsageError(f"{maps}: no step is done yet")
+        raise UsageError(f"{maps}: no step is done yet" if not done.any() else
+                         f"{maps}: no pixel of the interior has a {quantity} value")
     return pd.DataFrame(rows)
 
 
@@ -88,11 +159,13 @@ def _open_maps(maps, quantity: str):
     return store
 
 
-def growth_profiles(maps, *, axis: str = "x", quantity: str = "growth"):
+def growth_profiles(maps, *, axis: str = "x", quantity: str = "growth",
+                    sd_limit: float = SD_LIMIT):
     """The growth profile along the leaf per step: at each position along ``axis`` (image
     columns for ``"x"``, rows for ``"y"``), the median of ``quantity`` across the other
-    axis over the interior, and the pixels it used.  A grower's kymograph is this table
-    as an image (:func:`draw_kymograph`).
+    axis over the interior's confident pixels (:func:`confident`, over all leaves), and
+    the pixels it used.  A grower's kymograph is this table as an image
+    (:func:`draw_kymograph`).
 
     Returns
     -------
@@ -109,11 +182,14 @@ def growth_profiles(maps, *, axis: str = "x", quantity: str = "growth"):
     g = store.group
     frames, done = store.frames(), store.done()
     interior = np.asarray(g["interior"][:], dtype=bool)
+    has_sd = "growth_sd" in store.quantities
     times, intervals = store.step_times()
     across = 0 if axis == "x" else 1          # the axis the median runs across
     rows = []
     for i in np.flatnonzero(done):
-        m = np.where(interior, np.asarray(g[quantity][i], dtype=np.float64), np.nan)
+        m = np.asarray(g[quantity][i], dtype=np.float64)
+        sd = np.asarray(g["growth_sd"][i], dtype=np.float64) if has_sd else None
+        m = np.where(confident(sd, interior & np.isfinite(m), sd_limit), m, np.nan)
         n = np.isfinite(m).sum(axis=across)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)       # all-NaN positions
@@ -223,9 +299,11 @@ def _scale_bar(ax, store, step: int, where) -> None:
                                   fontproperties={"size": 7}))
 
 
-def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -> list[Path]:
-    """The growth maps at chosen frames (a strip on one colour scale) and the growth over
-    the interior against time: its median (robust to the few pixels where the estimate
+def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth",
+                sd_limit: float = SD_LIMIT) -> list[Path]:
+    """The growth maps at chosen frames (a strip on one colour scale; the pixels
+    :func:`confident` leaves out blank) and each leaf's growth against time (``table``
+    from :func:`growth_table`): its median (robust to the few pixels where the estimate
     breaks down, which move the mean), the mean, the 10-90 % spread and the truth where
     known.
 
@@ -241,7 +319,7 @@ def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -
     store = MapStore.open(maps)
     fig_dir = Path(fig_dir)
     fig_dir.mkdir(parents=True, exist_ok=True)
-    frames = list(table["frame"])
+    frames = sorted(set(table["frame"]))
     if times:
         missing = [t for t in times if t not in frames]
         if missing:
@@ -256,9 +334,11 @@ def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -
     per_frame = 100.0          # shown in % per frame
     imgs = []
     steps = [int(table.loc[table["frame"] == f, "step"].iloc[0]) for f in chosen]
+    has_sd = "growth_sd" in store.quantities
     for i in steps:
         m = np.asarray(store.group[quantity][i], dtype=float) * per_frame
-        imgs.append(np.where(interior, m, np.nan))
+        sd = np.asarray(store.group["growth_sd"][i], dtype=float) if has_sd else None
+        imgs.append(np.where(confident(sd, interior & np.isfinite(m), sd_limit), m, np.nan))
     # a colour scale from the 2nd to the 98th percentile: the few pixels where the
     # estimate breaks down (texture-poor spots, the leaf's edge) do not set it
     lo = np.nanpercentile(np.concatenate([m[np.isfinite(m)] for m in imgs]), 2)
@@ -281,20 +361,26 @@ def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth") -
         fig.savefig(fh, format="png", dpi=110)
     plt.close(fig)
 
-    x = table["time_s"] / 3600 if timed else table["frame"]
     fig, ax = plt.subplots(figsize=(7, 3.6), constrained_layout=True)
-    ax.fill_between(x, table["p10"] * per_frame, table["p90"] * per_frame, alpha=0.3,
-                    color="tab:green", label="10-90 % of the pixels")
-    ax.plot(x, table["median"] * per_frame, color="tab:green", lw=1.5,
-            label="median, estimated")
-    ax.plot(x, table["mean"] * per_frame, color="tab:green", lw=0.8, ls=":",
-            label="mean, estimated")
-    if "truth" in table:
-        ax.plot(x, table["truth"] * per_frame, "k--", lw=1.0, label="truth")
+    several = table["leaf"].nunique() > 1
+    for n, (leaf, rows) in enumerate(table.groupby("leaf")):
+        x = rows["time_s"] / 3600 if timed else rows["frame"]
+        colour = plt.get_cmap("tab10")((n + 2) % 10)
+        name = f"leaf {leaf}, " if several else ""
+        ax.fill_between(x, rows["p10"] * per_frame, rows["p90"] * per_frame, alpha=0.3,
+                        color=colour, label=f"{name}10-90 % of the pixels")
+        ax.plot(x, rows["median"] * per_frame, color=colour, lw=1.5,
+                label=f"{name}median, estimated")
+        ax.plot(x, rows["mean"] * per_frame, color=colour, lw=0.8, ls=":",
+                label=f"{name}mean, estimated")
+        if "truth" in rows:
+            ax.plot(x, rows["truth"] * per_frame, "k--", lw=1.0,
+                    label="truth" if n == 0 else None)
     ax.set_xlabel("time, h" if timed else "frame")
     ax.set_ylabel("growth, % area per frame")
     ax.legend(fontsize=8, loc="best")
-    ax.set_title("Growth over the interior", fontsize=10)
+    ax.set_title("Growth over the leaf" + ("ves" if several else "") + " (confident pixels)",
+                 fontsize=10)
     out2 = fig_dir / "growth_series.png"
     with atomic_write(out2) as fh:
         fig.savefig(fh, format="png", dpi=110)
@@ -322,14 +408,16 @@ class GrowthReport:
 
 
 def growth_report(maps, truth=None, *, fig_dir="growth", csv=None,
-                  times=None, profile_csv=None, axis: str = "x") -> GrowthReport:
-    """The growth of the map series ``maps`` per step (:func:`growth_table`, against the
-    recording ``truth`` where given), drawn into ``fig_dir`` (:func:`draw_growth`, the maps
-    at ``times``) and, with ``csv``, the table written there.  The outputs are checked
-    before anything is read or written; a grower reads the median (the mean is moved by
-    the few pixels where the estimate breaks down).  The growth profile along the image
-    ``axis`` per step (:func:`growth_profiles`) is drawn as a kymograph
-    (``growth_kymograph.png``) and, with ``profile_csv``, written there."""
+                  times=None, profile_csv=None, axis: str = "x",
+                  sd_limit: float = SD_LIMIT) -> GrowthReport:
+    """The growth of the map series ``maps`` per leaf and step (:func:`growth_table`,
+    against the recording ``truth`` where given), drawn into ``fig_dir``
+    (:func:`draw_growth`, the maps at ``times``) and, with ``csv``, the table written
+    there.  The outputs are checked before anything is read or written; a grower reads
+    the median (the mean is moved by the few pixels where the estimate breaks down).  The
+    growth profile along the image ``axis`` per step (:func:`growth_profiles`) is drawn as
+    a kymograph (``growth_kymograph.png``) and, with ``profile_csv``, written there.
+    Everything is over the confident pixels (:func:`confident`, ``sd_limit``)."""
     from gridflow.io import atomic_write, check_output
 
     # the inputs: the maps, the truth, and the recording the maps were made from
@@ -339,17 +427,31 @@ def growth_report(maps, truth=None, *, fig_dir="growth", csv=None,
     if profile_csv:
         check_output(profile_csv, suffixes=".csv", inputs=inputs, what="--profile-csv")
     check_output(fig_dir, suffixes=None, inputs=inputs, what="--fig-dir")
-    table = growth_table(maps, truth)
-    profiles = growth_profiles(maps, axis=axis)
-    written = draw_growth(maps, table, fig_dir, times=times)
+    if sd_limit is None or not (sd_limit >= 0):
+        raise UsageError(f"--sd-limit must be a number >= 0 (0 keeps every pixel), got "
+                         f"{sd_limit}")
+    labels, fragments = leaves(maps)
+    table = growth_table(maps, truth, sd_limit=sd_limit, labels=labels)
+    profiles = growth_profiles(maps, axis=axis, sd_limit=sd_limit)
+    written = draw_growth(maps, table, fig_dir, times=times, sd_limit=sd_limit)
     written.append(draw_kymograph(profiles, Path(fig_dir) / "growth_kymograph.png",
                                   axis=axis, title=f"Growth along the leaf ({maps})"))
     if profile_csv:
         with atomic_write(profile_csv, "w") as fh:
             profiles.to_csv(fh, index=False, float_format="%.6g")
         written.append(Path(profile_csv))
-    cols = ["frame", "median", "mean", "p10", "p90"] + (["truth", "q_rel"] if truth else [])
+    several = table["leaf"].nunique() > 1
+    cols = (["leaf"] if several else []) + ["frame", "median", "mean", "p10", "p90",
+                                            "n_pixels"] + (["truth", "q_rel"] if truth else [])
     lines = [table[cols].to_string(index=False, float_format=lambda v: f"{v:.3g}")]
+    n_kept, n_out = table["n_pixels"].sum(), table["n_uncertain"].sum()
+    lines.append(
+        f"{table['leaf'].nunique()} leaf part(s) of the maps"
+        + (f" ({fragments} fragment(s) under {MIN_LEAF_FRACTION:.0%} of the largest left "
+           "out)" if fragments else "")
+        + (f"; {n_out / max(n_kept + n_out, 1):.1%} of the pixels left out as uncertain "
+           f"(growth_sd over {sd_limit:g} x the step's median; --sd-limit 0 keeps all)"
+           if sd_limit else "; every pixel kept (--sd-limit 0)"))
     if truth:
         lines.append(f"Q_rel(growth) over the steps: median {table['q_rel'].median():.3g}, "
                      f"max {table['q_rel'].max():.3g}; correlation with the truth: of the "

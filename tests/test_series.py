@@ -786,3 +786,54 @@ def test_the_growth_maps_scale_bar_is_a_round_length_near_a_fifth_of_the_image()
         mant = length / 10 ** np.floor(np.log10(length) + 1e-12)
         assert round(mant, 9) in (1.0, 2.0, 5.0) and 0.4 * fifth <= length <= fifth
         assert px == pytest.approx(length * f / depth)
+
+
+def test_growth_report_per_leaf_over_confident_pixels(recording, tmp_path, capsys):
+    """Two leaves (a mask of two disjoint rectangles) and a 2 x 2 speck: gridflow growth
+    reports a row per leaf and step (the speck, under 5 % of the largest part, left out
+    and said so), each leaf's median near the recording's uniform growth, and the pixels
+    left out as uncertain counted beside those used.  The recording grows at the same
+    rate everywhere, so both leaves' medians must agree with the truth alike: within the
+    bound of test_series_growth_follows_the_rhythm (5 % scale bias of sigma 2 windows,
+    2.2 % from the rhythm inside the window) plus what a leaf 24 px wide costs (its
+    windows' erosion leaves about 10 px across, so few windows: 5 % more), 0.12 in all."""
+    import pandas as pd
+
+    from gridflow.pipeline.growth import confident, leaves
+
+    mask = np.zeros((64, 64), bool)
+    mask[6:58, 4:28] = mask[12:50, 38:62] = True
+    mask[61:63, 31:33] = True                        # a speck between them
+    np.save(tmp_path / "two.npy", mask)
+    out = tmp_path / "maps.zarr"
+    assert main(["estimate", str(recording), "-o", str(out), "--every", "8",
+                 "--mask", str(tmp_path / "two.npy"), *EST]) == 0
+    labels, fragments = leaves(out)
+    assert labels.max() == 2 and not labels[:, 28:36].any()
+    assert np.all(labels[:, :28][labels[:, :28] > 0] == 1)
+    csv = tmp_path / "g.csv"
+    assert main(["growth", str(out), "--truth", str(recording), "--csv", str(csv),
+                 "--fig-dir", str(tmp_path / "figs")]) == 0
+    text = capsys.readouterr().out
+    table = pd.read_csv(csv)
+    assert list(table.columns[:2]) == ["leaf", "step"]
+    assert sorted(set(table["leaf"])) == [1, 2]
+    assert (table.groupby("leaf").size() == table["step"].nunique()).all()
+    assert (table["n_pixels"] > 100).all()
+    err = (table["median"] / table["truth"] - 1).abs()
+    assert err.max() < 0.12, table[["leaf", "frame", "median", "truth"]]
+    assert "2 leaf part(s)" in text and "pixels left out as uncertain" in text
+    # --sd-limit 0 keeps every pixel: none uncertain, more used
+    assert main(["growth", str(out), "--csv", str(tmp_path / "all.csv"), "--sd-limit", "0",
+                 "--fig-dir", str(tmp_path / "figs0")]) == 0
+    every = pd.read_csv(tmp_path / "all.csv")
+    assert (every["n_uncertain"] == 0).all()
+    assert (every["n_pixels"] == table["n_pixels"] + table["n_uncertain"]).all()
+    assert main(["growth", str(out), "--sd-limit", "nan"]) == 2
+    # confident(): the median's multiple, over the given pixels only
+    sd = np.ones((4, 4))
+    sd[0, 0], sd[1, 1], sd[2, 2] = 10.0, 2.9, np.nan
+    where = np.ones((4, 4), bool)
+    kept = confident(sd, where, 3.0)
+    assert not kept[0, 0] and kept[1, 1] and not kept[2, 2] and kept.sum() == 14
+    assert confident(sd, where, 0.0).all() and confident(None, where).all()

@@ -40,7 +40,7 @@ def cmd_growth(a) -> int:
 
     return print_lines(growth_report(a.maps, a.truth, fig_dir=a.fig_dir, csv=a.csv,
                                      times=a.times, profile_csv=a.profile_csv,
-                                     axis=a.axis).lines)
+                                     axis=a.axis, sd_limit=a.sd_limit).lines)
 
 
 def _add_record(sub) -> None:
@@ -134,10 +134,17 @@ def _add_growth(sub) -> None:
                    help="also write the growth profile along --axis per step (CSV: step, "
                         "frame, time_s (s), position_px, median (per frame), per_hour, "
                         "n_pixels)")
-    p.add_argument("--csv", help="also write the per-step table (CSV: step, frame, time_s "
-                                 "(s), mean, median, median_per_hour, p10, p90 (growth per "
-                                 "frame over the interior, the median also per hour), "
-                                 "n_pixels; with --truth also truth, q_rel)")
+    p.add_argument("--csv", help="also write the observations table, a row per leaf and "
+                                 "step (CSV: leaf, step, frame, time_s (s), mean, median, "
+                                 "median_per_hour, p10, p90 (growth per frame over the "
+                                 "leaf's confident pixels, the median also per hour), "
+                                 "n_pixels (used), n_uncertain (left out); with --truth "
+                                 "also truth, q_rel)")
+    from gridflow.pipeline.growth import SD_LIMIT
+
+    p.add_argument("--sd-limit", type=float, default=SD_LIMIT, metavar="K",
+                   help="leave out the pixels whose growth_sd exceeds K times the step's "
+                        f"median over the leaf (default {SD_LIMIT:g}; 0 keeps every pixel)")
     p.set_defaults(func=cmd_growth)
 
 

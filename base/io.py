@@ -31,6 +31,7 @@ from .errors import FileFormatError, GridflowError
 from .volume import GridVolume
 
 __all__ = ["save_volume", "load_volume", "save_estimate", "save_estimates", "load_estimate",
+           "load_npz_maps",
            "atomic_write", "atomic_write_set", "check_output", "OutputError",
            "check_input_file"]
 
@@ -480,6 +481,16 @@ def signals_deferred():
                 handler(got[0], None)
             elif handler == signal.SIG_DFL:
                 signal.raise_signal(got[0])
+
+
+def load_npz_maps(path) -> dict[str, np.ndarray]:
+    """Read an ``.npz`` of maps (a method's output, :mod:`gridflow.bench.methods`): every
+    array under its name; a ``meta`` entry, if any, is left out."""
+    with _open_npz(path) as z:
+        try:
+            return {k: z[k] for k in z.files if k != "meta"}
+        except (ValueError, OSError, zipfile.BadZipFile) as exc:
+            raise FileFormatError(f"{path}: an array does not read ({exc})") from None
 
 
 def load_estimate(path) -> tuple[dict[str, np.ndarray], np.ndarray, dict]:

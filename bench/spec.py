@@ -32,7 +32,8 @@ _SWEEPABLE = {f.name for f in fields(SinusoidParams)} - {"grid", "seed", "noise"
 SWEEPABLE = tuple(sorted(_SWEEPABLE))
 # generator parameters that are integers (sizes); spec values for them must be integral
 _INTEGER = {f.name for f in fields(SinusoidParams) if f.type in ("int", int)}
-_SECTION_KEYS = {"sweep": {"name", "models", "motions", "noise", "seeds", "setup"},
+_SECTION_KEYS = {"sweep": {"name", "models", "motions", "noise", "seeds", "setup", "methods",
+                           "method_cmds", "method_timeout"},
                  "base": None,
                  "estimator": None, "axis": {"param", "values", "with"}}
 
@@ -79,6 +80,14 @@ class SweepSpec:
         The named setup (:mod:`gridflow.bench.setups`) whose generator parameters,
         estimator settings and brightness reference the spec starts from; ``base`` and
         ``estimator`` override them.
+    methods : list of str
+        What runs on each point (:mod:`gridflow.bench.methods`): ``"gridflow"`` (the
+        built-in estimator: ``models`` x ``motions``; the default), ``MODULE:FUNCTION``
+        or an entry point's name.
+    method_cmds : list of str
+        Programs run as methods (``'PROGRAM ARGS {input} {output}'``).
+    method_timeout : float
+        Seconds a program may take per point.
     """
 
     name: str
@@ -91,6 +100,9 @@ class SweepSpec:
     setup: str = "gridflow"
     motions: list[str] = field(default_factory=lambda: [DEFAULTS["motion"]])
     fixed: dict = field(default_factory=dict)
+    methods: list[str] = field(default_factory=lambda: ["gridflow"])
+    method_cmds: list[str] = field(default_factory=list)
+    method_timeout: float = 600.0
 
     @classmethod
     def from_toml(cls, path) -> "SweepSpec":
@@ -141,7 +153,12 @@ class SweepSpec:
                    base=dict(raw.get("base", {})), estimator=dict(raw.get("estimator", {})),
                    axes=axes, setup=sw.get("setup", "gridflow"),
                    motions=_list(sw.get("motions", [DEFAULTS["motion"]]), str, "[sweep] motions",
-                                 source), fixed=fixed)
+                                 source), fixed=fixed,
+                   methods=_list(sw.get("methods", ["gridflow"]), str, "[sweep] methods",
+                                 source),
+                   method_cmds=_list(sw.get("method_cmds", []), str, "[sweep] method_cmds",
+                                     source) if sw.get("method_cmds") else [],
+                   method_timeout=sw.get("method_timeout", 600.0))
         spec.validate(source)
         return spec
 
@@ -168,8 +185,19 @@ class SweepSpec:
         if "motion" in self.estimator:
             raise SpecError(f"{source}: [estimator] motion: give the motion models as "
                             "[sweep] motions = [...] (every model runs with each)")
+        if not self.methods and not self.method_cmds:
+            raise SpecError(f"{source}: [sweep] methods: none given (\"gridflow\" is the "
+                            "built-in estimator)")
+        if any(not isinstance(m, str) or not m.strip() for m in self.methods + self.method_cmds):
+            raise SpecError(f"{source}: [sweep] methods and method_cmds must be non-empty "
+                            "strings")
+        if not _real(self.method_timeout) or not self.method_timeout > 0 \
+                or not np.isfinite(self.method_timeout):
+            raise SpecError(f"{source}: [sweep] method_timeout must be a number of seconds "
+                            f"> 0, got {self.method_timeout!r}")
         for key, values in (("models", self.models), ("motions", self.motions),
-                            ("noise", self.noise),
+                            ("noise", self.noise), ("methods", self.methods),
+                            ("method_cmds", self.method_cmds),
                             ("seeds", self.seeds)):
             if len(set(values)) != len(values):
                 raise SpecError(f"{source}: [sweep] {key} repeats a value: {values}")
@@ -269,7 +297,12 @@ class SweepSpec:
                 "estimator": dict(self.estimator),
                 "axes": [{"param": p, "values": list(v),
                           **({"with": dict(self.fixed[p])} if self.fixed.get(p) else {})}
-                         for p, v in self.axes]}
+                         for p, v in self.axes],
+                # the methods where they are not the built-in estimator's alone (a spec
+                # of gridflow's models keeps the key and sidecar it always had)
+                **({"methods": list(self.methods), "method_cmds": list(self.method_cmds),
+                    "method_timeout": self.method_timeout}
+                   if self.methods != ["gridflow"] or self.method_cmds else {})}
 
 
 def _real(v) -> bool:

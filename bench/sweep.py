@@ -37,11 +37,18 @@ from gridflow.metrics import evaluate
 from .setups import get_setup
 from .spec import Point, SpecError, SweepSpec
 
-__all__ = ["run_point", "run_group", "run_sweep", "SweepInterrupted", "COLUMNS",
+__all__ = ["run_point", "run_group", "run_sweep", "SweepInterrupted", "COLUMNS", "times_path",
            "provenance", "read_sweep_csv"]
 
-COLUMNS = ["sweep", "param", "value", "noise", "seed", "model", "motion", "quantity",
-           "measure", "q", "q_rel", "q_abs", "n_pixels", "n_invalid", "generator", "estimator"]
+COLUMNS = ["sweep", "param", "value", "noise", "seed", "method", "model", "motion",
+           "quantity", "measure", "q", "q_rel", "q_abs", "n_pixels", "n_invalid", "generator",
+           "estimator"]
+# a point's part holds its wall times too; the sweep writes them apart (times_path), so
+# that the CSV of scores is the same, to the byte, however often it is made
+PART_COLUMNS = COLUMNS + ["seconds"]
+TIME_COLUMNS = ["sweep", "param", "value", "noise", "seed", "method", "motion", "seconds"]
+# the model and motion columns of a method other than the built-in estimator
+NO_MODEL = "-"
 QUANTITY_ORDER = ["Z", "Zx", "Zy", "Ux", "Uy", "Uz", "growth", "rotation", "Zx_t", "Zy_t",
                   "a1", "a2", "a1x", "a1y", "a2x", "a2y"]
 # everything a row of the CSV depends on: the code of these modules (besides the spec and
@@ -49,7 +56,7 @@ QUANTITY_ORDER = ["Z", "Zx", "Zy", "Ux", "Uy", "Uz", "growth", "rotation", "Zx_t
 _ROW_SOURCES = ("gridflow.estimator", "gridflow.generators", "gridflow.volume", "gridflow.io",
                 "gridflow.errors", "gridflow.bench.spec", "gridflow.bench.sweep",
                 "gridflow.pipeline", "gridflow.pipeline.executors", "gridflow.metrics",
-                "gridflow.bench.setups")
+                "gridflow.bench.setups", "gridflow.bench.methods")
 
 
 class SweepInterrupted(RuntimeError):
@@ -109,25 +116,33 @@ def _point_key(spec: SweepSpec, point: Point, fingerprint: str, versions: dict) 
 
 
 def run_point(spec: SweepSpec, point: Point, clean=None) -> pd.DataFrame:
-    """Generate one volume, estimate with every model, score every quantity.
+    """Generate one volume, run every method on it (the built-in estimator with every
+    model and motion), score every quantity each returns.
 
     ``clean``: the point's noise-free rendering, if already made (its noise is then added
     by :func:`add_noise`, which gives the same volume as rendering with noise).
 
+    Every method is scored by the same code (:func:`gridflow.metrics.evaluate`) over the
+    same pixels: the built-in estimator's interior at the spec's settings (the pixels
+    with a whole window), where the truth is given.  ``seconds`` is the wall time of the
+    call that made the row (for the built-in estimator one call per motion, shared by
+    its models, which share a structure tensor).
+
     Returns
     -------
     pandas.DataFrame
-        Rows with the columns of :data:`COLUMNS`.
+        Rows with the columns of :data:`PART_COLUMNS`.
     """
+    from gridflow.estimator import window_halo
+    from gridflow.estimator.settings import EstimatorSettings
+
+    from .methods import BUILTIN, resolve_methods, run_method
+
     params = spec.params(point)
     if clean is None:
         sv = make_sinusoid(params)
     else:
         sv = add_noise(clean, params.noise, params.seed)
-    res = {motion: estimate_models(sv.volume, sv.focal_length, sv.camera_spacing,
-                                   models=spec.models, principal_point=sv.principal_point,
-                                   motion=motion, **spec.estimator_settings())
-           for motion in spec.motions}
     truth = dict(sv.truth)
     if get_setup(spec.setup).brightness_reference == "global":
         # Eq. 22 against the swept brightness parameter's own value (the paper's reading
@@ -136,6 +151,44 @@ def run_point(spec: SweepSpec, point: Point, clean=None) -> pd.DataFrame:
         truth["a1"] = np.full_like(truth["a1"], params.a1 * fi)
         truth["a2"] = np.full_like(truth["a2"], params.a2 * fi * fi)
     gen = _diff_json(params.as_dict(), SinusoidParams().as_dict())
+    key = {"sweep": spec.name, "param": point.param, "value": point.value,
+           "noise": point.noise, "seed": point.seed}
+    rows = []
+    for method in resolve_methods(spec.methods, spec.method_cmds, spec.method_timeout):
+        if method == BUILTIN:
+            rows += _builtin_rows(spec, sv, truth, key, gen)
+            continue
+        maps, seconds = run_method(method, sv.volume, sv.focal_length, sv.camera_spacing,
+                                   principal_point=sv.principal_point)
+        H, W = sv.volume.shape[-2:]
+        halo = window_halo(EstimatorSettings(**spec.estimator_settings()))
+        region = np.zeros((H, W), bool)
+        region[halo:H - halo, halo:W - halo] = True
+        for r in evaluate(maps, truth, region):
+            rows.append({**key, "method": method.name, "model": NO_MODEL,
+                         "motion": NO_MODEL, **r, "generator": gen, "estimator": "{}",
+                         "seconds": seconds})
+    return pd.DataFrame(rows, columns=PART_COLUMNS)
+
+
+def times_path(output) -> Path:
+    """Where a sweep writing ``output`` (``NAME.csv``) puts its wall times:
+    ``NAME.times.csv``, a row per point, method and motion (:data:`TIME_COLUMNS`)."""
+    output = Path(output)
+    return output.with_name(output.stem + ".times.csv")
+
+
+def _builtin_rows(spec: SweepSpec, sv, truth: dict, key: dict, gen: str) -> list[dict]:
+    """The built-in estimator's rows of one point: every model with every motion."""
+    import time
+
+    res, seconds = {}, {}
+    for motion in spec.motions:
+        t0 = time.perf_counter()
+        res[motion] = estimate_models(sv.volume, sv.focal_length, sv.camera_spacing,
+                                      models=spec.models, principal_point=sv.principal_point,
+                                      motion=motion, **spec.estimator_settings())
+        seconds[motion] = time.perf_counter() - t0
     rows = []
     for motion in spec.motions:
         for model in spec.models:
@@ -150,11 +203,10 @@ def run_point(spec: SweepSpec, point: Point, clean=None) -> pd.DataFrame:
                               "filters_xy": f, "filters_sx": f, "filters_sy": f,
                               "filters_t": f})
             for r in evaluate(e.maps, truth, e.interior):
-                rows.append({"sweep": spec.name, "param": point.param, "value": point.value,
-                             "noise": point.noise, "seed": point.seed, "model": model,
-                             "motion": motion, **r, "generator": gen, "estimator": est})
-    df = pd.DataFrame(rows)
-    return df[COLUMNS]
+                rows.append({**key, "method": "gridflow", "model": model, "motion": motion,
+                             **r, "generator": gen, "estimator": est,
+                             "seconds": seconds[motion]})
+    return rows
 
 
 def _diff_json(values: dict, defaults: dict) -> str:
@@ -195,8 +247,11 @@ def _groups(todo) -> list[list]:
 
 def _order(df: pd.DataFrame, spec: SweepSpec) -> pd.DataFrame:
     pts = {(p.param, p.value, p.noise, p.seed): i for i, p in enumerate(spec.points())}
+    methods = list(spec.methods) + list(spec.method_cmds)
+    index = lambda seq, v: seq.index(v) if v in seq else -1  # noqa: E731
     key = df.apply(lambda r: (pts[(r.param, r.value, r.noise, r.seed)],
-                              spec.motions.index(r.motion), spec.models.index(r.model),
+                              methods.index(r.method), index(spec.motions, r.motion),
+                              index(spec.models, r.model),
                               QUANTITY_ORDER.index(r.quantity)
                               if r.quantity in QUANTITY_ORDER else 99), axis=1)
     return df.iloc[np.argsort(key.to_numpy(), kind="stable")].reset_index(drop=True)
@@ -243,12 +298,20 @@ def run_sweep(spec: SweepSpec, output, *, workers: int | None = None, progress: 
     output = check_output(output, suffixes=".csv", what="sweep output")
     sidecar = check_output(output.with_suffix(".json"), suffixes=".json",
                            what="sweep provenance")
+    times_file = check_output(times_path(output), suffixes=".csv", what="sweep wall times")
     parts_dir = output.parent / (output.name + ".parts")
     if parts_dir.exists() and not parts_dir.is_dir():
         raise SpecError(f"{parts_dir}: exists and is not a folder (the sweep keeps its "
                         "finished points there)")
     parts_dir.mkdir(parents=True, exist_ok=True)
     fp, versions = _code_fingerprint(), _versions()
+    from .methods import resolve_methods
+
+    # each method's code keys its points too: a resumed sweep never mixes two versions
+    resolved = resolve_methods(spec.methods, spec.method_cmds, spec.method_timeout)
+    mv = {m.name: m.version for m in resolved if not isinstance(m, str)}
+    if mv:
+        versions = {**versions, "methods": mv}
     todo, parts = [], []
     for p in spec.points():
         part = str(parts_dir / f"{_point_key(spec, p, fp, versions)}.csv")
@@ -294,8 +357,12 @@ def run_sweep(spec: SweepSpec, output, *, workers: int | None = None, progress: 
         bar.close()
     df = _order(pd.concat([pd.read_csv(p, keep_default_na=False, na_values=[""])
                            for p in parts], ignore_index=True), spec)
+    times = df[TIME_COLUMNS].drop_duplicates(ignore_index=True)
+    df = df[COLUMNS]
     with atomic_write(output, "w") as fh:
         df.to_csv(fh, index=False, float_format="%.7g")
+    with atomic_write(times_file, "w") as fh:
+        times.to_csv(fh, index=False, float_format="%.4g")
     with atomic_write(sidecar, "w") as fh:
         json.dump(provenance(spec), fh, indent=1, sort_keys=True)
         fh.write("\n")
@@ -335,6 +402,9 @@ def read_sweep_csv(path) -> pd.DataFrame:
     if "motion" not in df and not missing:
         # made before motion models existed: every row is the paper's translation
         df.insert(df.columns.get_loc("model") + 1, "motion", TRANSLATION.name)
+    if "method" not in df and not missing:
+        # made before other methods could run: every row is the built-in estimator's
+        df.insert(df.columns.get_loc("model"), "method", "gridflow")
     if missing:
         raise SpecError(f"{path}: not a sweep CSV (missing columns {sorted(missing)})")
     for col in ("value", "noise", "q_rel", "q_abs"):

@@ -18,7 +18,8 @@ from pathlib import Path
 __all__ = ["build_spec", "run_sweep_job", "SweepJobReport", "CHANGES"]
 
 # what the command line may change in a spec (besides the axis: param and values)
-CHANGES = ("models", "motions", "noise", "seeds", "setup")
+CHANGES = ("models", "motions", "noise", "seeds", "setup", "methods", "method_cmds",
+           "method_timeout")
 
 
 @dataclass
@@ -61,6 +62,11 @@ def build_spec(source=None, *, name: str = "sweep", param=None, values=None, **c
     unknown = set(changes) - set(CHANGES)
     if unknown:
         raise TypeError(f"build_spec: unknown changes {sorted(unknown)}")
+    if changes.get("method_cmds") is not None or changes.get("methods") is not None:
+        # the command line's methods (--method and --method-cmd together) replace the
+        # spec's
+        changes["methods"] = changes.get("methods") or []
+        changes["method_cmds"] = changes.get("method_cmds") or []
     for key, value in changes.items():
         if value is not None:
             setattr(spec, key, value)
@@ -107,12 +113,20 @@ def run_sweep_job(spec, output, *, processes=None, workers=None, scheduler=None,
     check_output(output, suffixes=".csv", inputs=inputs, what="-o")
     check_output(Path(output).with_suffix(".json"), suffixes=".json", inputs=inputs,
                  what="the provenance sidecar of -o")
+    from .sweep import times_path
+
+    check_output(times_path(output), suffixes=".csv", inputs=inputs,
+                 what="the wall times of -o")
     if scheduler and workers:
         raise UsageError("--scheduler and --workers exclude each other (--workers starts a "
                          "local cluster)")
     if isinstance(spec, dict):
         spec = build_spec(**spec)
-    log(f"sweep {spec.name}: {len(spec.points())} points x {len(spec.models)} models -> "
+    others = [m for m in spec.methods if m != "gridflow"] + list(spec.method_cmds)
+    log(f"sweep {spec.name}: {len(spec.points())} points x "
+        + (f"{len(spec.models)} models" if "gridflow" in spec.methods else "")
+        + (" + " if others and "gridflow" in spec.methods else "")
+        + (f"{len(others)} other method(s)" if others else "") + " -> "
         f"{output}")
     t0 = time.perf_counter()
     client = None

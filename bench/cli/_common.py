@@ -164,8 +164,13 @@ def add_estimator_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--ref-frame", type=int, default=None,
                    help="index of the reference frame, whose maps are estimated (default "
                         "the input's: the centre frame unless it states another)")
-    g.add_argument("--method", choices=METHODS, default=None,
-                   help=f"implementation (same results; default {DEFAULTS['method']})")
+    g.add_argument("--method", default=None, metavar="METHOD",
+                   help=f"the built-in estimator's implementation, one of "
+                        f"{', '.join(METHODS)} (same results; default {DEFAULTS['method']}); "
+                        "or another method instead of gridflow's: MODULE:FUNCTION "
+                        "(importable from here or PYTHONPATH) or an entry point of the "
+                        "group gridflow.methods, written as an estimate .npz (the README, "
+                        "'Benchmark your own method')")
     g.add_argument("--no-slant-correction", action="store_true",
                    help="read U_Z as the paper does (no slant-motion correction)")
     g.add_argument("--no-zoom-correction", action="store_true",
@@ -192,8 +197,10 @@ def estimator_settings(a) -> dict:
     """The estimator settings given on the command line; those not given are left out and
     keep the library's defaults (or the light-field choice's), so that a refocused light
     field can refuse the single pass's settings instead of ignoring them."""
+    from gridflow.estimator import METHODS
     s = dict(filters=a.filters, temporal_radius=a.temporal_radius, ref_frame=a.ref_frame,
-             method=a.method, combine=a.combine, motion=a.motion, sigma=a.sigma,
+             method=a.method if a.method in METHODS else None, combine=a.combine,
+             motion=a.motion, sigma=a.sigma,
              window=a.window, growth_support=a.growth_support)
     if a.no_slant_correction:
         s["slant_correction"] = False

@@ -20,6 +20,10 @@ def cmd_generate(a) -> int:
 
 
 def cmd_estimate(a) -> int:
+    from gridflow.estimator import METHODS
+
+    if (a.method and a.method not in METHODS) or a.method_cmd:
+        return _estimate_with_method(a)
     from gridflow.pipeline import RunOptions, estimate
 
     o = RunOptions(models=a.model, settings=estimator_settings(a), every=a.every,
@@ -29,6 +33,24 @@ def cmd_estimate(a) -> int:
                    workers=a.workers, memory=a.memory, band_rows=a.band_rows,
                    connect=a.connect, mask=a.mask, progress=not a.no_progress)
     return print_lines(estimate(a.input, a.output, o).lines)
+
+
+def _estimate_with_method(a) -> int:
+    """--method / --method-cmd: another method's maps on the whole input, as an estimate
+    .npz (:func:`gridflow.bench.methods.estimate_with_method`)."""
+    from gridflow.errors import UsageError
+
+    from ..methods import command_method, estimate_with_method, load_method
+
+    if a.method and a.method_cmd:
+        raise UsageError("--method and --method-cmd exclude each other (one method per "
+                         "estimate)")
+    if not str(a.output).endswith(".npz"):
+        raise UsageError(f"-o {a.output}: --method and --method-cmd write an estimate .npz "
+                         "(a map series runs the built-in estimator)")
+    m = (load_method(a.method) if a.method
+         else command_method(a.method_cmd, a.method_timeout))
+    return print_lines(estimate_with_method(a.input, a.output, m))
 
 
 def cmd_evaluate(a) -> int:
@@ -113,6 +135,17 @@ def _add_estimate(sub) -> None:
                         "for every step). Default: every pixel")
     p.add_argument("--no-progress", action="store_true",
                    help="no messages before long steps and no progress bar")
+    from ..methods import DEFAULT_TIMEOUT
+
+    o = p.add_argument_group("a program as the method instead of gridflow's (the README, "
+                             "'Benchmark your own method'; --method takes a Python one); "
+                             "writes an estimate .npz")
+    o.add_argument("--method-cmd", default=None, metavar="CMD",
+                   help="a program: 'PROGRAM ARGS {input} {output}' (reads the volume as an "
+                        "interchange .npz at {input}, writes its maps as an .npz at "
+                        "{output})")
+    o.add_argument("--method-timeout", type=float, default=DEFAULT_TIMEOUT, metavar="S",
+                   help=f"seconds the program may take (default {DEFAULT_TIMEOUT:g})")
     p.add_argument("-o", "--output", required=True,
                    help="output: an estimate .npz (one step, at --ref-frame or the input's "
                         "reference frame), or a map series MAPS.zarr (a step at every K-th "

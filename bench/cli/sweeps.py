@@ -85,6 +85,19 @@ def _add_sweep(sub) -> None:
     p.add_argument("--setup", choices=sorted(SETUPS), default=None,
                    help="named setup the spec starts from (default: the spec's, else "
                         "gridflow; see bench/setups.py)")
+    p.add_argument("--method", dest="methods", action="append", metavar="METHOD",
+                   help="a method to run on every point instead of the spec's (repeat for "
+                        "several): 'gridflow' (the built-in estimator, every model and "
+                        "motion), MODULE:FUNCTION (importable from here or PYTHONPATH) or "
+                        "an entry point of the group gridflow.methods; see the README, "
+                        "'Benchmark your own method'")
+    p.add_argument("--method-cmd", dest="method_cmds", action="append", metavar="CMD",
+                   help="a program run as a method: 'PROGRAM ARGS {input} {output}' (reads "
+                        "the volume as an interchange .npz at {input}, writes its maps as "
+                        "an .npz at {output}); repeat for several")
+    p.add_argument("--method-timeout", type=float, default=None, metavar="S",
+                   help="seconds a --method-cmd program may take per point (default: the "
+                        "spec's, else 600)")
     p.add_argument("--connect-timeout", type=float, default=10.0,
                    help="seconds to wait for --scheduler or --workers to answer (default 10)")
     p.add_argument("--processes", type=positive_int, default=None,

@@ -1,0 +1,240 @@
+"""Anyone's method beside gridflow's (gridflow.bench.methods): a Python function in a module
+of the current folder, one registered as an entry point, and a program in a subprocess,
+through ``gridflow sweep`` and ``gridflow estimate``; bad methods refused in one line."""
+
+import importlib
+import sys
+import textwrap
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from gridflow.bench.cli import main
+from gridflow.bench.methods import MethodError, command_method, load_method, run_method
+
+# a method in a module of the current folder: the built-in estimator wrapped, whole and
+# partial, and methods that go wrong in each way the interface names
+MODULE = '''
+import time
+import numpy as np
+from gridflow.estimator import estimate
+
+
+def wrapped(volume, focal_length, camera_spacing, *, principal_point=None):
+    return dict(estimate(volume, focal_length, camera_spacing,
+                         principal_point=principal_point).maps)
+
+
+def partial(volume, focal_length, camera_spacing, *, principal_point=None):
+    e = estimate(volume, focal_length, camera_spacing, principal_point=principal_point)
+    return {"Z": e["Z"], "Uz": e["Uz"]}
+
+
+def raises(volume, focal_length, camera_spacing, *, principal_point=None):
+    raise RuntimeError("no convergence")
+
+
+def wrong_shape(volume, focal_length, camera_spacing, *, principal_point=None):
+    return {"Z": np.zeros((3, 3))}
+
+
+def a_list(volume, focal_length, camera_spacing, *, principal_point=None):
+    return [np.zeros(volume.shape[-2:])]
+
+
+def typo(volume, focal_length, camera_spacing, *, principal_point=None):
+    return {"depth": np.zeros(volume.shape[-2:])}
+
+
+def strings(volume, focal_length, camera_spacing, *, principal_point=None):
+    return {"Z": np.full(volume.shape[-2:], "x")}
+'''
+
+# a program: reads the interchange volume, writes the built-in estimator's maps
+PROGRAM = '''
+import sys
+import numpy as np
+from gridflow.estimator import estimate
+
+z = np.load(sys.argv[1])
+assert not any(k.startswith("truth") for k in z.files), "the interchange file has no truth"
+e = estimate(z["volume"], float(z["focal_length"]), tuple(z["camera_spacing"]),
+             principal_point=tuple(z["principal_point"]))
+np.savez(sys.argv[2], **e.maps)
+'''
+
+SPEC = '''
+[sweep]
+name = "methods"
+models = ["full"]
+noise = [0.0, 0.01]
+seeds = [0]
+
+[base]
+height = 96
+width = 96
+frames = 9
+
+[[axis]]
+param = "a1"
+values = [0.0, 0.4]
+'''
+KEY = ["param", "value", "noise", "seed", "quantity"]
+
+
+@pytest.fixture
+def here(tmp_path, monkeypatch):
+    """A working folder holding the module ``mymethods``, the program and a spec; the
+    module importable from it as from the current folder."""
+    (tmp_path / "mymethods.py").write_text(MODULE)
+    (tmp_path / "program.py").write_text(PROGRAM)
+    (tmp_path / "spec.toml").write_text(SPEC)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    yield tmp_path
+    sys.modules.pop("mymethods", None)
+
+
+def _program():
+    return f"{sys.executable} program.py {{input}} {{output}}"
+
+
+def test_a_wrapped_estimator_scores_as_the_built_in_one(here):
+    """The built-in estimator wrapped as a method, through --method and --method-cmd,
+    gives the rows of the built-in estimator itself (asked: 1e-12 relative; the same code
+    on the same volume: measured equal), scored by the same code over the same pixels; a
+    partial method (Z and U_Z only) is scored on those two alone; every row carries its
+    method, and the wall times are written beside the CSV."""
+    out = here / "s.csv"
+    assert main(["sweep", "spec.toml", "-o", str(out), "--method", "gridflow", "--method",
+                 "mymethods:wrapped", "--method", "mymethods:partial", "--method-cmd",
+                 _program(), "--no-progress", "--processes", "1"]) == 0
+    df = pd.read_csv(out)
+    assert list(df["method"].unique()) == ["gridflow", "mymethods:wrapped",
+                                           "mymethods:partial", _program()]
+    ref = df[df.method == "gridflow"].set_index(KEY)
+    for name in ("mymethods:wrapped", _program()):
+        d = df[df.method == name].set_index(KEY)
+        assert len(d) == len(ref) == 4 * 12
+        assert (d.model == "-").all() and (d.motion == "-").all()
+        for col in ("q_rel", "q_abs", "n_pixels", "n_invalid"):
+            np.testing.assert_allclose(d[col], ref.loc[d.index, col], rtol=1e-12, atol=0)
+    part = df[df.method == "mymethods:partial"]
+    assert sorted(part.quantity.unique()) == ["Uz", "Z"] and len(part) == 4 * 2
+    # the wall times apart: a row per point and method (gridflow: and motion)
+    times = pd.read_csv(here / "s.times.csv")
+    assert len(times) == 4 * 4 and (times.seconds > 0).all()
+    assert set(times.method) == set(df.method)
+
+
+def test_an_entry_point_is_a_method(here, monkeypatch):
+    """A package that registers ``wrapped`` in the group gridflow.methods (its dist-info on
+    sys.path, as pip installs it) is found by its name, and scores as its function."""
+    info = here / "mymethods_pkg-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: mymethods-pkg\n"
+                                   "Version: 1.0\n")
+    (info / "entry_points.txt").write_text("[gridflow.methods]\nwrapped-ep = "
+                                           "mymethods:wrapped\n")
+    importlib.invalidate_caches()
+    m = load_method("wrapped-ep")
+    assert m.name == "wrapped-ep" and m.kind == "python"
+    from gridflow.generators import make_sinusoid
+
+    sv = make_sinusoid(height=96, width=96, grid=(3, 3))
+    maps, _ = run_method(m, sv.volume, sv.focal_length, sv.camera_spacing)
+    direct = load_method("mymethods:wrapped").fn(sv.volume, sv.focal_length,
+                                                 sv.camera_spacing)
+    assert set(maps) == set(direct)
+    for k in maps:
+        np.testing.assert_array_equal(maps[k], direct[k])
+    assert main(["sweep", "spec.toml", "-o", str(here / "ep.csv"), "--method", "wrapped-ep",
+                 "--no-progress", "--processes", "1"]) == 0
+    assert set(pd.read_csv(here / "ep.csv").method) == {"wrapped-ep"}
+
+
+@pytest.mark.parametrize("method, match", [
+    (["--method", "nosuchmodule:f"], "module 'nosuchmodule' does not import"),
+    (["--method", "mymethods:nothing"], "has no 'nothing'"),
+    (["--method", "not-registered"], "no installed package registers it"),
+    (["--method", "mymethods:raises"], "raised RuntimeError: no convergence"),
+    (["--method", "mymethods:wrong_shape"], r"map 'Z' has shape \(3, 3\), expected"),
+    (["--method", "mymethods:a_list"], "returned list, expected a mapping"),
+    (["--method", "mymethods:typo"], "names gridflow does not score: depth"),
+    (["--method", "mymethods:strings"], "map 'Z' is not an array of numbers"),
+    (["--method-cmd", "false {input} {output}"], "exited with status 1"),
+    (["--method-cmd", "true {input} {output}"], "wrote nothing"),
+    (["--method-cmd", f"{sys.executable} -c 'import time; time.sleep(30)' {{input}} {{output}}",
+      "--method-timeout", "1"],
+     "did not finish within 1 s"),
+    (["--method-cmd", "cat {input}"], "must contain {input} and {output}"),
+    (["--method-cmd", "no-such-program-xyz {input} {output}"], "no program"),
+])
+def test_a_bad_method_is_one_line_naming_it_and_leaves_no_csv(here, capsys, method, match):
+    out = here / "bad.csv"
+    assert main(["sweep", "spec.toml", "-o", str(out), *method, "--no-progress",
+                 "--processes", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) <= 2 and "Traceback" not in "\n".join(err), err
+    import re
+
+    assert re.search(match, err[-1]), err
+    assert not out.exists()
+
+
+def test_a_resumed_sweep_never_mixes_two_versions_of_a_method(here, capsys):
+    """A method's code keys its finished points: after its module changes, the points are
+    run again (not reused), and the CSV holds the new code's rows alone."""
+    from gridflow.bench.spec import SweepSpec
+    from gridflow.bench.sweep import run_sweep
+
+    spec = SweepSpec.from_toml(here / "spec.toml")
+    spec.methods = ["mymethods:partial"]
+    spec.validate()
+    out = here / "r.csv"
+    first = run_sweep(spec, out, workers=1, progress=False, keep_parts=True)
+    parts = set((here / "r.csv.parts").glob("*.csv"))
+    assert len(parts) == 4
+    # a new version: Z doubled
+    (here / "mymethods.py").write_text(MODULE.replace('return {"Z": e["Z"], "Uz": e["Uz"]}',
+                                                      'return {"Z": 2 * e["Z"], "Uz": e["Uz"]}'))
+    sys.modules.pop("mymethods", None)
+    importlib.invalidate_caches()
+    second = run_sweep(spec, out, workers=1, progress=True, keep_parts=True)
+    assert "not reused" in capsys.readouterr().err
+    assert len(set((here / "r.csv.parts").glob("*.csv")) - parts) == 4
+    z1 = first[first.quantity == "Z"].q_rel.to_numpy()
+    z2 = second[second.quantity == "Z"].q_rel.to_numpy()
+    assert np.all(z2 > 0.9) and np.all(z1 < 1e-2)
+
+
+def test_gridflow_estimate_runs_a_method_and_evaluate_scores_it(here, capsys):
+    """gridflow estimate VOL.npz --method / --method-cmd writes an estimate .npz over the
+    built-in estimator's interior; gridflow evaluate scores it as it scores gridflow's
+    own (the wrapped estimator: the same table)."""
+    assert main(["generate", "--height", "96", "--width", "96", "-o", "v.npz"]) == 0
+    assert main(["estimate", "v.npz", "-o", "g.npz", "--no-progress"]) == 0
+    assert main(["estimate", "v.npz", "--method", "mymethods:wrapped", "-o", "w.npz"]) == 0
+    assert main(["estimate", "v.npz", "--method-cmd", _program(), "-o", "c.npz"]) == 0
+    capsys.readouterr()
+    tables = []
+    for f in ("g.npz", "w.npz", "c.npz"):
+        assert main(["evaluate", f, "v.npz"]) == 0
+        tables.append(capsys.readouterr().out.splitlines()[1:])
+    assert tables[0] == tables[1] == tables[2]
+    # the implementation choice is still --method's too
+    assert main(["estimate", "v.npz", "--method", "reference", "-o", "r.npz",
+                 "--no-progress"]) == 0
+    assert main(["estimate", "v.npz", "--method", "mymethods:raises", "-o", "x.npz"]) == 2
+    assert "raised RuntimeError" in capsys.readouterr().err
+    assert not (here / "x.npz").exists()
+
+
+def test_command_method_checks_its_line():
+    with pytest.raises(MethodError, match="must contain"):
+        command_method("prog {input}")
+    with pytest.raises(MethodError, match="method-timeout"):
+        command_method("prog {input} {output}", timeout=float("nan"))
+    m = command_method(textwrap.dedent("prog --x 1 {input} {output}"))
+    assert m.kind == "command" and len(m.version) == 12

@@ -70,7 +70,8 @@ FIGS      := $(FIGDIR)/fig1.png $(FIGDIR)/fig2.png \
 OUTPUTS   := $(FIGS) results/claims.csv results/claims_paper_setup.csv results/cube.csv \
              results/peers_depth.csv results/claims_growth.csv results/leaf.csv \
              results/paper_terms.csv results/claims_paper_setup_zoom.csv \
-             results/cube_variants.csv results/growth_maps.csv results/uneven_leaf.csv
+             results/cube_variants.csv results/growth_maps.csv results/uneven_leaf.csv \
+             results/leaderboard.csv
 CUBE_SRC  := $(wildcard estimator/*.py scenes/*.py) base/loader.py base/errors.py \
              bench/cube_experiment.py bench/figures.py base/metrics.py bench/markdown.py
 
@@ -133,6 +134,16 @@ results/leaf.csv $(FIGDIR)/fig_leaf.png &: $(LEAF_SRC) | $(STAMP) povray
 results/growth_maps.csv: $(wildcard estimator/*.py generators/*.py) bench/growth_maps.py \
                          bench/peers.py | $(STAMP)
 	$(PY) -m gridflow.bench.growth_maps --csv results/growth_maps.csv --write-doc bench/README.md
+
+# the leaderboard: per suite (bench/sweeps/leaderboard_*.toml) gridflow's models and the
+# peers as methods, ranked (about ten seconds); its table in bench/README.md
+results/leaderboard.csv $(FIGDIR)/fig_leaderboard.png &: $(wildcard estimator/*.py \
+                         generators/*.py) bench/leaderboard.py bench/peer_methods.py \
+                         bench/peers.py bench/methods.py bench/sweep.py bench/spec.py \
+                         bench/sweeps/leaderboard_depth.toml \
+                         bench/sweeps/leaderboard_growth.toml | $(STAMP)
+	$(PY) -m gridflow.bench.leaderboard --csv results/leaderboard.csv --fig-dir $(FIGDIR) \
+	  --write-doc bench/README.md
 
 # the POV-Ray leaf growing unevenly, as a recording (625 renders, cached in work/cube/),
 # estimated with the growth default: maps and kymograph against the truth, per region

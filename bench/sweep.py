@@ -133,11 +133,31 @@ def run_point(spec: SweepSpec, point: Point, clean=None) -> pd.DataFrame:
     pandas.DataFrame
         Rows with the columns of :data:`PART_COLUMNS`.
     """
-    from gridflow.estimator import window_halo
-    from gridflow.estimator.settings import EstimatorSettings
-
     from .methods import BUILTIN, resolve_methods, run_method
 
+    params, sv, truth = point_data(spec, point, clean)
+    gen = _diff_json(params.as_dict(), SinusoidParams().as_dict())
+    key = {"sweep": spec.name, "param": point.param, "value": point.value,
+           "noise": point.noise, "seed": point.seed}
+    rows = []
+    for method in resolve_methods(spec.methods, spec.method_cmds, spec.method_timeout):
+        if method == BUILTIN:
+            rows += _builtin_rows(spec, sv, truth, key, gen)
+            continue
+        maps, seconds = run_method(method, sv.volume, sv.focal_length, sv.camera_spacing,
+                                   principal_point=sv.principal_point)
+        for r in evaluate(maps, truth, scoring_region(spec, sv.volume.shape)):
+            rows.append({**key, "method": method.name, "model": NO_MODEL,
+                         "motion": NO_MODEL, **r, "generator": gen, "estimator": "{}",
+                         "seconds": seconds})
+    return pd.DataFrame(rows, columns=PART_COLUMNS)
+
+
+def point_data(spec: SweepSpec, point: Point, clean=None):
+    """A point's generator parameters, volume (:class:`gridflow.generators.SinusoidVolume`;
+    from ``clean``, its noise-free rendering, where given) and the truth it is scored
+    against (the volume's, but under a ``global`` brightness reference the swept
+    parameter's own value)."""
     params = spec.params(point)
     if clean is None:
         sv = make_sinusoid(params)
@@ -150,25 +170,21 @@ def run_point(spec: SweepSpec, point: Point, clean=None) -> pd.DataFrame:
         fi = params.frame_interval
         truth["a1"] = np.full_like(truth["a1"], params.a1 * fi)
         truth["a2"] = np.full_like(truth["a2"], params.a2 * fi * fi)
-    gen = _diff_json(params.as_dict(), SinusoidParams().as_dict())
-    key = {"sweep": spec.name, "param": point.param, "value": point.value,
-           "noise": point.noise, "seed": point.seed}
-    rows = []
-    for method in resolve_methods(spec.methods, spec.method_cmds, spec.method_timeout):
-        if method == BUILTIN:
-            rows += _builtin_rows(spec, sv, truth, key, gen)
-            continue
-        maps, seconds = run_method(method, sv.volume, sv.focal_length, sv.camera_spacing,
-                                   principal_point=sv.principal_point)
-        H, W = sv.volume.shape[-2:]
-        halo = window_halo(EstimatorSettings(**spec.estimator_settings()))
-        region = np.zeros((H, W), bool)
-        region[halo:H - halo, halo:W - halo] = True
-        for r in evaluate(maps, truth, region):
-            rows.append({**key, "method": method.name, "model": NO_MODEL,
-                         "motion": NO_MODEL, **r, "generator": gen, "estimator": "{}",
-                         "seconds": seconds})
-    return pd.DataFrame(rows, columns=PART_COLUMNS)
+    return params, sv, truth
+
+
+def scoring_region(spec: SweepSpec, shape) -> np.ndarray:
+    """The pixels every method other than the built-in estimator is scored over (shape
+    (H, W) bool, for a volume of ``shape`` (..., H, W)): the built-in estimator's
+    interior at the spec's settings, the pixels with a whole window."""
+    from gridflow.estimator import window_halo
+    from gridflow.estimator.settings import EstimatorSettings
+
+    H, W = shape[-2:]
+    halo = window_halo(EstimatorSettings(**spec.estimator_settings()))
+    region = np.zeros((H, W), bool)
+    region[halo:H - halo, halo:W - halo] = True
+    return region
 
 
 def times_path(output) -> Path:

@@ -238,3 +238,39 @@ def test_command_method_checks_its_line():
         command_method("prog {input} {output}", timeout=float("nan"))
     m = command_method(textwrap.dedent("prog --x 1 {input} {output}"))
     assert m.kind == "command" and len(m.version) == 12
+
+
+def test_an_exported_suite_scored_from_files_equals_the_sweep(here, capsys):
+    """gridflow export writes the spec's volumes without truth, the truth apart and a
+    manifest with checksums; estimates made outside gridflow from those files (here the
+    program above) and scored by gridflow score give the sweep's own rows of that method
+    (the same numbers: the same code on the same data); a missing estimate or a changed
+    truth file is refused by name."""
+    import json
+
+    assert main(["export", "spec.toml", "suite", "--no-progress"]) == 0
+    manifest = json.loads((here / "suite" / "manifest.json").read_text())
+    assert manifest["suite"] == "methods" and len(manifest["items"]) == 4
+    for it in manifest["items"]:
+        with np.load(here / "suite" / it["volume"]) as z:
+            assert not [k for k in z.files if k.startswith("truth")]
+    (here / "est").mkdir()
+    import subprocess
+
+    for it in manifest["items"]:
+        subprocess.run([sys.executable, "program.py", f"suite/{it['volume']}",
+                        f"est/{it['id']}.npz"], check=True)
+    assert main(["score", "suite", "est", "-o", "scored.csv", "--name", "program"]) == 0
+    assert main(["sweep", "spec.toml", "-o", "s.csv", "--method-cmd", _program(),
+                 "--no-progress", "--processes", "1"]) == 0
+    a = pd.read_csv("scored.csv").set_index(KEY)
+    b = pd.read_csv("s.csv").set_index(KEY).loc[a.index]
+    assert len(a) == len(b) == 4 * 12 and (a.method == "program").all()
+    for col in ("q_rel", "q_abs", "n_pixels", "n_invalid", "generator"):
+        assert (a[col].fillna(-1) == b[col].fillna(-1)).all(), col
+    capsys.readouterr()
+    first = manifest["items"][0]["id"]
+    (here / "est" / f"{first}.npz").unlink()
+    assert main(["score", "suite", "est", "-o", "x.csv"]) == 2
+    assert "1 of 4 estimates missing" in capsys.readouterr().err
+    assert main(["export", "spec.toml", "suite"]) == 2          # not into a full folder

@@ -30,6 +30,48 @@ def cmd_sweep(a) -> int:
     return 0
 
 
+def cmd_export(a) -> int:
+    from ..suites import export_suite
+
+    return print_lines(export_suite(a.suite, a.folder, progress=not a.no_progress))
+
+
+def cmd_score(a) -> int:
+    from ..suites import score_suite
+
+    return print_lines(score_suite(a.folder, a.estimates, a.output, method=a.name))
+
+
+def _add_export(sub) -> None:
+    p = sub.add_parser("export", help="write a sweep's volumes as interchange .npz files "
+                                      "with their truth apart and a manifest",
+                       description="Write every point of a sweep spec as an interchange "
+                                   "volume (DIR/volumes/ID.npz, no truth), its truth and "
+                                   "scored pixels (DIR/truth/ID.npz) and DIR/manifest.json "
+                                   "(the spec, gridflow's version, checksums), for methods "
+                                   "run outside gridflow; gridflow score scores their "
+                                   "estimates.")
+    p.add_argument("suite", help="a sweep spec: a shipped spec's name (smoke, paper, "
+                                 "growth, ...) or a TOML file")
+    p.add_argument("folder", help="a new (or empty) folder")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_export)
+
+
+def _add_score(sub) -> None:
+    p = sub.add_parser("score", help="score a folder of estimates of an exported suite",
+                       description="Score ESTIMATES/ID.npz (maps under gridflow's quantity "
+                                   "names) for every volume of a suite written by gridflow "
+                                   "export, with the code that scores the sweeps, into a "
+                                   "CSV of the sweep's columns.")
+    p.add_argument("folder", help="the suite (gridflow export)")
+    p.add_argument("estimates", help="folder of ID.npz estimates, one per volume")
+    p.add_argument("-o", "--output", required=True, help="output CSV")
+    p.add_argument("--name", default=None,
+                   help="the method column (default the estimates folder's name)")
+    p.set_defaults(func=cmd_score)
+
+
 def cmd_figures(a) -> int:
     from ..figures import figures_from_csv
 
@@ -155,8 +197,10 @@ def _add_claims(sub) -> None:
 
 
 def register(sub) -> None:
-    """The commands sweep, figures, readings, claims."""
+    """The commands sweep, export, score, figures, readings, claims."""
     _add_sweep(sub)
+    _add_export(sub)
+    _add_score(sub)
     _add_figures(sub)
     _add_readings(sub)
     _add_claims(sub)

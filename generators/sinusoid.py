@@ -257,8 +257,11 @@ def _intersect(p: SinusoidParams, x, y, sx: float, sy: float, t: float):
     """Exact ray-plane intersection; returns depth and material coordinates."""
     denom = 1.0 - (p.Z_X * x + p.Z_Y * y) / p.f
     num = p.Z0 + p.U_Z * t + p.Z_X * (sx - p.U_X * t) + p.Z_Y * (sy - p.U_Y * t)
-    Z = num / denom
-    if np.any(denom <= 0) or np.any(Z <= 0):
+    # a pixel whose ray is parallel to the plane (denom exactly 0) is refused before the
+    # division, not turned into inf with a warning
+    bad = np.any(denom <= 0)
+    Z = num / np.where(denom > 0, denom, 1.0)
+    if bad or np.any(Z <= 0):
         raise ParameterError(
             "the plane is seen edge-on or behind a camera for some pixel "
             f"(Z_X={p.Z_X}, Z_Y={p.Z_Y}, f={p.f}, image {p.height}x{p.width}); "

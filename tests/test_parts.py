@@ -201,20 +201,26 @@ def test_every_cached_kernel_is_found_without_a_list():
     """jit.py finds the kernels by their type: as many as the kernel modules declare
     with cache=True (counted here in their source); after make's warm-up all are cached
     for this CPU."""
-    from gridflow.estimator import _kernels, _solver, jit
+    from gridflow.estimator import _affine, _kernels, _solver, jit
 
     declared = sum(len(re.findall(r"@njit\([^)]*cache=True", (ROOT / "estimator" / f).read_text()))
-                   for f in ("_kernels.py", "_solver.py"))
-    assert len(jit.cached_kernels((_kernels, _solver))) == declared >= 10
+                   for f in ("_kernels.py", "_solver.py", "_affine.py"))
+    assert len(jit.cached_kernels((_kernels, _solver, _affine))) == declared >= 11
     sv = make_sinusoid(height=128, width=128, frames=5, grid=(3, 3))
     estimate(sv.volume, sv.focal_length, sv.camera_spacing, sigma=2.0, window=9)
     estimate(sv.volume.astype(np.float32), sv.focal_length, sv.camera_spacing, sigma=2.0,
              window=9)
-    assert jit.kernels_cached((_kernels, _solver))
+    estimate(sv.volume, sv.focal_length, sv.camera_spacing, sigma=2.0, window=9,
+             motion="affine")
+    assert jit.kernels_cached((_kernels, _solver, _affine))
+
+
+def _subparser(parser, command):
+    return next(a for a in parser._actions if a.dest == "command").choices[command]
 
 
 def _choices(parser, command, dest):
-    sub = next(a for a in parser._actions if a.dest == "command").choices[command]
+    sub = _subparser(parser, command)
     return tuple(next(a for a in sub._actions if a.dest == dest).choices)
 
 
@@ -224,7 +230,17 @@ def test_the_cli_takes_its_choices_from_the_library():
     from gridflow.estimator.lightfield import SELECT_DEFAULTS, SELECTS
 
     ap = build_parser()
-    assert _choices(ap, "estimate", "method") == METHODS
+    # --method takes an implementation or another method (gridflow.bench.methods): its
+    # help names every implementation, and estimator_settings passes those through
+    from gridflow.bench.cli._common import estimator_settings
+
+    help_text = next(a.help for a in _subparser(ap, "estimate")._actions
+                     if "--method" in a.option_strings)
+    assert all(m in help_text for m in METHODS)
+    a = ap.parse_args(["estimate", "x.npz", "-o", "y.npz", "--method", METHODS[-1]])
+    assert estimator_settings(a)["method"] == METHODS[-1]
+    a = ap.parse_args(["estimate", "x.npz", "-o", "y.npz", "--method", "mod:fn"])
+    assert "method" not in estimator_settings(a)
     assert _choices(ap, "estimate", "combine") == COMBINE
     assert _choices(ap, "estimate", "filters") == FILTER_NAMES
     assert _choices(ap, "estimate", "select") == SELECTS

@@ -74,6 +74,13 @@ def ranking(rows):
 
     df = rows.copy()
     df["entry"] = [_entry(r) for r in df.itertuples()]
+    # two methods of one function name: their full names
+    clash = df.groupby("entry").method.nunique()
+    clash = set(clash[clash > 1].index)
+    df["entry"] = [r.method if r.entry in clash else r.entry for r in df.itertuples()]
+    # a point where a method gave no score counts as its worst: a method with values at
+    # few points does not rank on those alone
+    df["q"] = df["q"].fillna(np.inf)
     out = []
     for suite, (main, shown) in SUITES.items():
         d = df[(df.sweep == suite) & df.quantity.isin(shown)]

@@ -5,7 +5,8 @@ A **method** is a Python callable with the positional signature of
 
     fn(volume, focal_length, camera_spacing, *, principal_point=None) -> Mapping[str, ndarray]
 
-``volume`` has shape ``(T, Sy, Sx, H, W)``; the method returns ``(H, W)`` maps under
+``volume`` has shape ``(T, Sy, Sx, H, W)`` (read-only); the method returns the ``(H, W)``
+maps of the centre camera at the middle frame ``(T - 1) // 2`` under
 gridflow's quantity names (:data:`QUANTITIES`: ``Z, Zx, Zy, disparity, Ux, Uy, Uz, growth,
 rotation, a1, ...``), NaN where it has no value, any subset of them: it is scored on what
 it returns.  On the command line a method is
@@ -110,18 +111,48 @@ def _file_hash(h, path) -> None:
         h.update(f"unreadable:{path}".encode())
 
 
+def _source_file(fn):
+    """The source file of ``fn`` (a function, a ``functools.partial`` of one, or a callable
+    instance: its class's), or None."""
+    import functools
+
+    while isinstance(fn, functools.partial):
+        fn = fn.func
+    for obj in (inspect.unwrap(fn), type(fn)):
+        try:
+            return inspect.getsourcefile(obj)
+        except TypeError:
+            continue
+    return None
+
+
 def _python_version(fn, extra: str = "") -> str:
-    """A hash of the source file of ``fn``'s module (and ``extra``)."""
+    """A hash of the source file of ``fn``'s module (and ``extra``); of its qualified name
+    where it has no source file (a built-in), never of an address."""
     h = hashlib.sha1(extra.encode())
-    try:
-        src = inspect.getsourcefile(inspect.unwrap(fn))
-    except TypeError:
-        src = None
+    src = _source_file(fn)
     if src:
         _file_hash(h, src)
     else:
-        h.update(repr(fn).encode())
+        h.update(f"{getattr(fn, '__module__', '')}.{getattr(fn, '__qualname__', '')}"
+                 .encode())
     return h.hexdigest()[:12]
+
+
+# the hash of each method module's file as it was imported: a module whose file changed
+# since is imported again, so that the code that runs is the code the version names
+_IMPORTED: dict[str, str] = {}
+
+
+def _import_current(name: str):
+    mod = importlib.import_module(name)
+    path = getattr(mod, "__file__", None)
+    if path and Path(path).is_file():
+        digest = hashlib.sha1(Path(path).read_bytes()).hexdigest()
+        if _IMPORTED.setdefault(name, digest) != digest:
+            mod = importlib.reload(mod)
+            _IMPORTED[name] = digest
+    return mod
 
 
 def load_method(spec: str) -> Method:
@@ -140,11 +171,11 @@ def load_method(spec: str) -> Method:
     if ":" in spec:
         mod_name, _, fn_name = spec.partition(":")
         if "" not in sys.path and "." not in sys.path:
-            # the current folder, as `python -m` has it: a method next to the spec
+            # the current folder, as `python -m` has it
             sys.path.insert(0, "")
         try:
-            mod = importlib.import_module(mod_name)
-        except Exception as exc:        # noqa: BLE001 - any import failure is the method's
+            mod = _import_current(mod_name)
+        except (Exception, SystemExit) as exc:   # noqa: BLE001 - the method's failure
             raise MethodError(f"--method {spec}: module {mod_name!r} does not import "
                               f"({type(exc).__name__}: {exc})") from None
         fn = mod
@@ -167,7 +198,7 @@ def load_method(spec: str) -> Method:
         ep = found[0]
         try:
             fn = ep.load()
-        except Exception as exc:        # noqa: BLE001
+        except (Exception, SystemExit) as exc:   # noqa: BLE001
             raise MethodError(f"--method {spec}: entry point {ep.value!r} does not load "
                               f"({type(exc).__name__}: {exc})") from None
         dist = getattr(ep, "dist", None)
@@ -191,8 +222,9 @@ def command_method(cmd: str, timeout: float = DEFAULT_TIMEOUT) -> Method:
         raise MethodError(f"--method-cmd {cmd!r}: the command must contain {{input}} and "
                           "{output} (where gridflow writes the volume and the program its "
                           "maps)")
-    if not (timeout > 0):
-        raise MethodError(f"--method-timeout must be a number of seconds > 0, got {timeout}")
+    if not (0 < timeout < float("inf")):
+        raise MethodError(f"--method-timeout must be a finite number of seconds > 0, got "
+                          f"{timeout}")
     program = shutil.which(args[0]) or args[0]
     h = hashlib.sha1(cmd.encode())
     # the program's own file and, for an interpreter, the script it runs
@@ -229,18 +261,25 @@ def _run_command(cmd, args, timeout, volume, focal_length, camera_spacing, *,
                                     (float(pp[0]), float(pp[1])), {}, {}))
         run = [a.replace("{input}", str(inp)).replace("{output}", str(out)) for a in args]
         try:
-            p = subprocess.run(run, capture_output=True, text=True, timeout=timeout,
-                               stdin=subprocess.DEVNULL)
+            # a session of its own: on timeout the program and everything it started go
+            proc = subprocess.Popen(run, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                    stdin=subprocess.DEVNULL, start_new_session=True)
         except FileNotFoundError:
             raise MethodError(f"method {cmd!r}: no program {args[0]!r}") from None
         except PermissionError:
             raise MethodError(f"method {cmd!r}: {args[0]!r} is not executable") from None
-        except subprocess.TimeoutExpired:
-            raise MethodError(f"method {cmd!r}: did not finish within {timeout:g} s "
-                              "(--method-timeout)") from None
-        if p.returncode != 0:
-            last = (p.stderr or p.stdout or "").strip().splitlines()[-1:] or ["no output"]
-            raise MethodError(f"method {cmd!r}: exited with status {p.returncode} "
+        try:
+            stdout, stderr = proc.communicate(timeout=timeout)
+        except BaseException as exc:
+            _kill_group(proc)
+            if isinstance(exc, subprocess.TimeoutExpired):
+                raise MethodError(f"method {cmd!r}: did not finish within {timeout:g} s "
+                                  "(--method-timeout)") from None
+            raise
+        if proc.returncode != 0:
+            text = (stderr or stdout or b"").decode("utf-8", errors="replace").strip()
+            last = text.splitlines()[-1:] or ["no output"]
+            raise MethodError(f"method {cmd!r}: exited with status {proc.returncode} "
                               f"({last[0][:200]})")
         if not out.is_file():
             raise MethodError(f"method {cmd!r}: wrote nothing at {{output}}")
@@ -248,6 +287,18 @@ def _run_command(cmd, args, timeout, volume, focal_length, camera_spacing, *,
             return load_npz_maps(out)
         except GridflowError as exc:
             raise MethodError(f"method {cmd!r}: its output {exc}") from None
+
+
+def _kill_group(proc) -> None:
+    """Stop a program started in a session of its own, with what it started."""
+    import os
+    import signal
+
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
+    proc.communicate()
 
 
 def run_method(method: Method, volume: np.ndarray, focal_length: float, camera_spacing,
@@ -267,12 +318,16 @@ def run_method(method: Method, volume: np.ndarray, focal_length: float, camera_s
         arrays of another shape or not of numbers.
     """
     H, W = volume.shape[-2:]
+    # a read-only view: a method that wrote into its input would change what the next
+    # method (and the next point, made from the same rendering) sees
+    view = np.asarray(volume).view()
+    view.flags.writeable = False
     t0 = time.perf_counter()
     try:
-        out = method.fn(volume, focal_length, camera_spacing, principal_point=principal_point)
+        out = method.fn(view, focal_length, camera_spacing, principal_point=principal_point)
     except MethodError:
         raise
-    except Exception as exc:            # noqa: BLE001 - the method's failure, named
+    except (Exception, SystemExit) as exc:   # noqa: BLE001 - the method's failure, named
         raise MethodError(f"method {method.name}: raised {type(exc).__name__}: "
                           f"{str(exc)[:300]}") from None
     seconds = time.perf_counter() - t0
@@ -288,11 +343,11 @@ def run_method(method: Method, volume: np.ndarray, focal_length: float, camera_s
         raise MethodError(f"method {method.name}: returned no maps")
     maps = {}
     for k, v in out.items():
-        try:
-            a = np.asarray(v, dtype=np.float64)
-        except (TypeError, ValueError) as exc:
-            raise MethodError(f"method {method.name}: map {k!r} is not an array of numbers "
-                              f"({exc})") from None
+        kind = np.asarray(v).dtype.kind
+        if kind not in "iuf":
+            raise MethodError(f"method {method.name}: map {k!r} is not an array of real "
+                              f"numbers (dtype {np.asarray(v).dtype})")
+        a = np.asarray(v, dtype=np.float64)
         if a.shape != (H, W):
             raise MethodError(f"method {method.name}: map {k!r} has shape {a.shape}, "
                               f"expected the images' {(H, W)}")
@@ -314,6 +369,13 @@ def estimate_with_method(source_path, output, method: Method) -> list[str]:
 
     out = check_output(output, suffixes=".npz", inputs=[source_path], what="-o")
     src = open_source(source_path)
+    # a method estimates the middle frame (the interface's convention): an input whose
+    # truth or reference is another frame would be scored against the wrong one
+    mid = (src.frames - 1) // 2
+    for what, k in (("truth", src.truth_frame), ("reference", src.ref_frame)):
+        if k is not None and k != mid:
+            raise UsageError(f"{source_path}: its {what} frame is {k}; a method estimates "
+                             f"the middle frame {mid} of the {src.frames}")
     vol = src.load()
     maps, seconds = run_method(method, vol.volume, vol.focal_length, vol.camera_spacing,
                                principal_point=vol.principal_point)
@@ -321,11 +383,8 @@ def estimate_with_method(source_path, output, method: Method) -> list[str]:
     halo = window_halo(EstimatorSettings())
     interior = np.zeros((H, W), bool)
     interior[halo:H - halo, halo:W - halo] = True
-    # the frame whose truth scores it: as Source.load chose it
-    ref = next((k for k in (src.truth_frame, src.ref_frame) if k is not None),
-               (src.frames - 1) // 2)
     settings = {"method": method.name, "method_version": method.version,
-                "seconds": round(seconds, 3), "ref_frame": ref}
+                "seconds": round(seconds, 3), "ref_frame": mid}
     save_estimate(out, Estimate(maps, method.name, interior, settings))
     return [f"method {method.name}: {len(maps)} map(s) ({', '.join(maps)}) in "
             f"{seconds:.2f} s; wrote {out} (score it: gridflow evaluate {out} INPUT)"]

@@ -42,7 +42,8 @@ def _sha256(path: Path) -> str:
 
 
 def _item_id(point) -> str:
-    return (f"{point.param}={point.value:g}_noise={point.noise:g}_seed={point.seed}"
+    # repr: every digit, so that two values never share a file
+    return (f"{point.param}={point.value!r}_noise={point.noise!r}_seed={point.seed}"
             .replace("/", "_"))
 
 
@@ -101,6 +102,11 @@ def _manifest(folder: Path) -> dict:
         raise UsageError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(m, dict) or m.get("format") != SUITE_FORMAT or "items" not in m:
         raise UsageError(f"{path}: not a gridflow suite manifest of format {SUITE_FORMAT}")
+    need = {"id", "point", "params", "truth", "sha256"}
+    for n, it in enumerate(m["items"] if isinstance(m["items"], list) else [None]):
+        if not isinstance(it, dict) or need - set(it) or not isinstance(it["sha256"], dict):
+            raise UsageError(f"{path}: item {n} is not an item of a suite (it needs "
+                             f"{', '.join(sorted(need))})")
     return m
 
 
@@ -139,7 +145,8 @@ def score_suite(folder, estimates, output, *, method: str | None = None) -> list
         truth = load_npz_maps(tpath)
         region = truth.pop("region").astype(bool)
         epath = estimates / f"{it['id']}.npz"
-        maps = load_npz_maps(epath)
+        # gridflow's own estimate files hold their interior too
+        maps = {k: v for k, v in load_npz_maps(epath).items() if k != "interior"}
         unknown = [k for k in maps if k not in QUANTITIES]
         if unknown:
             raise UsageError(f"{epath}: maps under names gridflow does not score: "
@@ -147,6 +154,9 @@ def score_suite(folder, estimates, output, *, method: str | None = None) -> list
         bad = {k: v.shape for k, v in maps.items() if v.shape != region.shape}
         if bad:
             raise UsageError(f"{epath}: maps of shape {bad}, expected {region.shape}")
+        odd = {k: str(v.dtype) for k, v in maps.items() if v.dtype.kind not in "iuf"}
+        if odd:
+            raise UsageError(f"{epath}: maps that are not real numbers: {odd}")
         p = it["point"]
         gen = _diff_json(it["params"], json.loads(json.dumps(SinusoidParams().as_dict())))
         for r in evaluate({k: np.asarray(v, float) for k, v in maps.items()}, truth, region):

@@ -146,7 +146,14 @@ def run_point(spec: SweepSpec, point: Point, clean=None) -> pd.DataFrame:
             continue
         maps, seconds = run_method(method, sv.volume, sv.focal_length, sv.camera_spacing,
                                    principal_point=sv.principal_point)
-        for r in evaluate(maps, truth, scoring_region(spec, sv.volume.shape)):
+        scored = evaluate(maps, truth, scoring_region(spec, sv.volume.shape))
+        if not scored:
+            from .methods import MethodError
+
+            raise MethodError(f"method {method.name}: returned none of the quantities this "
+                              f"sweep has truth for (it returned {', '.join(maps)}; truth: "
+                              f"{', '.join(truth)})")
+        for r in scored:
             rows.append({**key, "method": method.name, "model": NO_MODEL,
                          "motion": NO_MODEL, **r, "generator": gen, "estimator": "{}",
                          "seconds": seconds})
@@ -315,16 +322,17 @@ def run_sweep(spec: SweepSpec, output, *, workers: int | None = None, progress: 
     sidecar = check_output(output.with_suffix(".json"), suffixes=".json",
                            what="sweep provenance")
     times_file = check_output(times_path(output), suffixes=".csv", what="sweep wall times")
+    from .methods import resolve_methods
+
+    # each method's code keys its points too: a resumed sweep never mixes two versions.
+    # Resolved first: a method that does not load leaves nothing behind
+    resolved = resolve_methods(spec.methods, spec.method_cmds, spec.method_timeout)
     parts_dir = output.parent / (output.name + ".parts")
     if parts_dir.exists() and not parts_dir.is_dir():
         raise SpecError(f"{parts_dir}: exists and is not a folder (the sweep keeps its "
                         "finished points there)")
     parts_dir.mkdir(parents=True, exist_ok=True)
     fp, versions = _code_fingerprint(), _versions()
-    from .methods import resolve_methods
-
-    # each method's code keys its points too: a resumed sweep never mixes two versions
-    resolved = resolve_methods(spec.methods, spec.method_cmds, spec.method_timeout)
     mv = {m.name: m.version for m in resolved if not isinstance(m, str)}
     if mv:
         versions = {**versions, "methods": mv}

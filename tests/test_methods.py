@@ -49,6 +49,23 @@ def typo(volume, focal_length, camera_spacing, *, principal_point=None):
 
 def strings(volume, focal_length, camera_spacing, *, principal_point=None):
     return {"Z": np.full(volume.shape[-2:], "x")}
+
+
+def bools(volume, focal_length, camera_spacing, *, principal_point=None):
+    return {"Z": np.ones(volume.shape[-2:], bool)}
+
+
+def mutate(volume, focal_length, camera_spacing, *, principal_point=None):
+    volume *= 0
+    return {"Z": np.ones(volume.shape[-2:])}
+
+
+def exits(volume, focal_length, camera_spacing, *, principal_point=None):
+    raise SystemExit(3)
+
+
+def unscored(volume, focal_length, camera_spacing, *, principal_point=None):
+    return {"model_error": np.zeros(volume.shape[-2:])}
 '''
 
 # a program: reads the interchange volume, writes the built-in estimator's maps
@@ -162,7 +179,11 @@ def test_an_entry_point_is_a_method(here, monkeypatch):
     (["--method", "mymethods:wrong_shape"], r"map 'Z' has shape \(3, 3\), expected"),
     (["--method", "mymethods:a_list"], "returned list, expected a mapping"),
     (["--method", "mymethods:typo"], "names gridflow does not score: depth"),
-    (["--method", "mymethods:strings"], "map 'Z' is not an array of numbers"),
+    (["--method", "mymethods:strings"], "map 'Z' is not an array of real numbers"),
+    (["--method", "mymethods:bools"], "map 'Z' is not an array of real numbers"),
+    (["--method", "mymethods:mutate"], "raised ValueError: .*read-only"),
+    (["--method", "mymethods:exits"], "raised SystemExit: 3"),
+    (["--method", "mymethods:unscored"], "returned none of the quantities this sweep has"),
     (["--method-cmd", "false {input} {output}"], "exited with status 1"),
     (["--method-cmd", "true {input} {output}"], "wrote nothing"),
     (["--method-cmd", f"{sys.executable} -c 'import time; time.sleep(30)' {{input}} {{output}}",
@@ -181,6 +202,9 @@ def test_a_bad_method_is_one_line_naming_it_and_leaves_no_csv(here, capsys, meth
 
     assert re.search(match, err[-1]), err
     assert not out.exists()
+    if "does not import" in match:
+        # resolved before anything is written: not even the parts folder
+        assert not (here / "bad.csv.parts").exists()
 
 
 def test_a_resumed_sweep_never_mixes_two_versions_of_a_method(here, capsys):
@@ -199,8 +223,6 @@ def test_a_resumed_sweep_never_mixes_two_versions_of_a_method(here, capsys):
     # a new version: Z doubled
     (here / "mymethods.py").write_text(MODULE.replace('return {"Z": e["Z"], "Uz": e["Uz"]}',
                                                       'return {"Z": 2 * e["Z"], "Uz": e["Uz"]}'))
-    sys.modules.pop("mymethods", None)
-    importlib.invalidate_caches()
     second = run_sweep(spec, out, workers=1, progress=True, keep_parts=True)
     assert "not reused" in capsys.readouterr().err
     assert len(set((here / "r.csv.parts").glob("*.csv")) - parts) == 4
@@ -274,3 +296,27 @@ def test_an_exported_suite_scored_from_files_equals_the_sweep(here, capsys):
     assert main(["score", "suite", "est", "-o", "x.csv"]) == 2
     assert "1 of 4 estimates missing" in capsys.readouterr().err
     assert main(["export", "spec.toml", "suite"]) == 2          # not into a full folder
+
+
+def test_a_program_past_its_time_is_stopped_with_what_it_started():
+    """--method-timeout stops the program's whole process group: a shell's child (here a
+    sleep of a duration no other process uses) does not outlive it."""
+    import time
+
+    m = command_method("sh -c 'sleep 61.37; true' {input} {output}", timeout=1.0)
+    vol = np.zeros((3, 1, 3, 8, 8))
+    t0 = time.perf_counter()
+    with pytest.raises(MethodError, match="did not finish within 1 s"):
+        run_method(m, vol, 100.0, (0.1, 0.1))
+    assert time.perf_counter() - t0 < 10
+    time.sleep(0.2)
+    from pathlib import Path
+
+    left = []
+    for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+        try:
+            if b"61.37" in cmdline.read_bytes():
+                left.append(cmdline)
+        except OSError:          # a process that ended meanwhile
+            pass
+    assert not left, left

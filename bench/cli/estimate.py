@@ -22,6 +22,8 @@ def cmd_generate(a) -> int:
 def cmd_estimate(a) -> int:
     from gridflow.estimator import METHODS
 
+    if a.method == "gridflow":          # the sweep's name for the built-in estimator
+        a.method = None
     if (a.method and a.method not in METHODS) or a.method_cmd:
         return _estimate_with_method(a)
     from gridflow.pipeline import RunOptions, estimate
@@ -45,11 +47,22 @@ def _estimate_with_method(a) -> int:
     if a.method and a.method_cmd:
         raise UsageError("--method and --method-cmd exclude each other (one method per "
                          "estimate)")
-    if not str(a.output).endswith(".npz"):
+    if not str(a.output).lower().endswith(".npz"):
         raise UsageError(f"-o {a.output}: --method and --method-cmd write an estimate .npz "
                          "(a map series runs the built-in estimator)")
-    m = (load_method(a.method) if a.method
-         else command_method(a.method_cmd, a.method_timeout))
+    from gridflow.estimator import METHODS
+
+    from ..methods import MethodError
+
+    try:
+        m = (load_method(a.method) if a.method
+             else command_method(a.method_cmd, a.method_timeout))
+    except MethodError as exc:
+        if a.method and ":" not in a.method:
+            # perhaps a mistyped implementation
+            raise MethodError(f"{exc}; or an implementation of gridflow's: "
+                              f"{', '.join(METHODS)}") from None
+        raise
     return print_lines(estimate_with_method(a.input, a.output, m))
 
 

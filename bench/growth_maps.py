@@ -18,7 +18,8 @@ over gridflow's window, a Gaussian of 16 px), the plant labs' method. Scores ove
 estimate's interior: the per-pixel median relative error, and the growth profile along
 the leaf (the median over rows per column) against the truth's: correlation and slope;
 for gridflow, how its ``growth_sd`` describes the errors (the fractions within one and
-two sd, and their rank correlation).
+two sd, and their rank correlation).  ``--method`` / ``--method-cmd`` put anyone's method
+beside them (:mod:`gridflow.bench.methods`), scored alike.
 """
 
 from __future__ import annotations
@@ -103,12 +104,18 @@ def divergence_2d(flow: dict, sigma: float = 16.0) -> np.ndarray:
     return gaussian_filter(div, sigma, mode="nearest")
 
 
-def run(seeds=(0, 1), noise: float = 0.003, leaves=tuple(LEAVES), progress=print) -> list:
+def run(seeds=(0, 1), noise: float = 0.003, leaves=tuple(LEAVES), progress=print,
+        methods=(), method_cmds=()) -> list:
     """Rows ``dict(leaf, seed, method, median_rel_error, profile_corr, profile_slope,
-    coverage, seconds)``."""
+    coverage, seconds)``.  ``methods`` and ``method_cmds`` (:mod:`gridflow.bench.methods`:
+    ``MODULE:FUNCTION``, entry points, programs) run on the same volumes and are scored
+    alike, on their ``growth`` map (and its ``growth_sd``, where they return one)."""
     from gridflow.estimator import estimate
 
+    from .methods import MethodError, resolve_methods, run_method
     from .peers import flow_farneback, flow_ilk
+
+    others = resolve_methods(methods, method_cmds)
 
     methods = {
         "gridflow (default)": lambda sv: estimate(
@@ -143,6 +150,16 @@ def run(seeds=(0, 1), noise: float = 0.003, leaves=tuple(LEAVES), progress=print
                 # scored on gridflow's interior: the same pixels for every method
                 rows.append(dict(leaf=leaf, seed=seed, method=name, seconds=secs,
                                  **score(div, truth, mask)))
+            for m in others:
+                maps, secs = run_method(m, sv.volume, sv.focal_length, sv.camera_spacing,
+                                        principal_point=sv.principal_point)
+                if "growth" not in maps:
+                    raise MethodError(f"method {m.name}: returned no growth map (it "
+                                      f"returned {', '.join(maps)})")
+                extra = (uncertainty(maps["growth"], maps["growth_sd"], truth, mask)
+                         if "growth_sd" in maps else {})
+                rows.append(dict(leaf=leaf, seed=seed, method=m.name, seconds=secs,
+                                 **score(maps["growth"], truth, mask), **extra))
             progress(f"  {leaf}, seed {seed}: done", flush=True)
     return rows
 
@@ -176,13 +193,21 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     ap.add_argument("--noise", type=float, default=0.003)
     ap.add_argument("--csv", default=None, help="also write the rows to this CSV")
+    ap.add_argument("--method", dest="methods", action="append", default=[],
+                    metavar="METHOD", help="also run this method (MODULE:FUNCTION or an "
+                    "entry point of gridflow.methods; the README, 'Benchmark your own "
+                    "method'), scored on its growth map; repeat for several")
+    ap.add_argument("--method-cmd", dest="method_cmds", action="append", default=[],
+                    metavar="CMD", help="also run this program ('PROG {input} {output}')")
+    ap.add_argument("--leaves", nargs="+", choices=list(LEAVES), default=list(LEAVES))
     ap.add_argument("--write-doc", default=None, metavar="MD",
                     help="rewrite the growth-maps block of this markdown file "
                          "(bench/README.md) with the table")
     a = ap.parse_args(argv)
     print(f"growth maps: 5 leaves x {len(a.seeds)} noise draws (sigma_n = {a.noise}), "
           "256^2, 5 x 5 cameras, 17 frames; about 20 s a leaf ...", flush=True)
-    rows = run(a.seeds, a.noise)
+    rows = run(a.seeds, a.noise, leaves=tuple(a.leaves), methods=a.methods,
+               method_cmds=a.method_cmds)
     print(table(rows))
     if a.csv:
         import pandas as pd

@@ -56,13 +56,20 @@ def leaf_table(truth: dict, results: dict, masks: dict) -> pd.DataFrame:
     for (motion, model), e in results.items():
         for region in REGIONS:
             m = masks[region] & e.interior
-            ok = m & np.isfinite(e["Uz"])
-            uz_rel = np.abs(e["Uz"][ok] - truth["Uz"][ok]) / np.abs(truth["Uz"][ok])
             row = {"region": region, "motion": motion, "model": model,
-                   "n_pixels": int(m.sum()), "n_valid": int(ok.sum()),
-                   "median_rel_Uz": float(np.median(uz_rel)) if ok.any() else np.nan,
-                   "q_rel_Uz": float(np.mean(uz_rel)) if ok.any() else np.nan,
+                   "n_pixels": int(m.sum()),
                    "truth_growth": float(np.nanmedian(truth["growth"][m])) if m.any() else np.nan}
+            # a method of the benchmark's interface may return either map alone: the
+            # valid pixels are those with every map it returned of the two
+            ok = m.copy()
+            for q in ("Uz", "growth"):
+                if q in e:
+                    ok &= np.isfinite(e[q])
+            row["n_valid"] = int(ok.sum())
+            if "Uz" in e:
+                uz_rel = np.abs(e["Uz"][ok] - truth["Uz"][ok]) / np.abs(truth["Uz"][ok])
+                row.update(median_rel_Uz=float(np.median(uz_rel)) if ok.any() else np.nan,
+                           q_rel_Uz=float(np.mean(uz_rel)) if ok.any() else np.nan)
             if "growth" in e:
                 g, tg = e["growth"][ok], truth["growth"][ok]
                 row.update(median_growth=float(np.median(g)) if ok.any() else np.nan,
@@ -124,12 +131,20 @@ class LeafReport:
 
 
 def run_leaf_experiment(scene, cache, *, csv, fig_dir, sigma: float = CUBE_SIGMA,
-                        window: int = CUBE_WINDOW, progress: bool = True) -> LeafReport:
+                        window: int = CUBE_WINDOW, progress: bool = True, methods=(),
+                        method_cmds=()) -> LeafReport:
     """Render ``scene`` into ``cache`` (or find it there), estimate with both motion
     models and every brightness model, score per region, write ``csv`` and
     ``fig_dir/fig_leaf.{png,pdf}``.  The window is the cube's (:data:`~gridflow.bench.
     cube_experiment.CUBE_SIGMA`, :data:`~gridflow.bench.cube_experiment.CUBE_WINDOW`); the
-    outputs and the cache are checked before anything is rendered."""
+    outputs and the cache are checked before anything is rendered.
+
+    ``methods``, ``method_cmds``: other methods (:mod:`gridflow.bench.methods`), run on
+    the same volume and scored alike over the same pixels (the rows' ``motion`` is ``-``,
+    ``model`` the method's name); not drawn in the figure."""
+    from .methods import resolve_methods, run_method
+
+    others = resolve_methods(methods, method_cmds)
     from gridflow.io import atomic_write, check_output
     from gridflow.loader import load_folder
     from gridflow.scenes.render import render_cube
@@ -155,7 +170,21 @@ def run_leaf_experiment(scene, cache, *, csv, fig_dir, sigma: float = CUBE_SIGMA
                               models=MODELS)
         results.update({(motion, m): e for m, e in res.items()})
     t2 = time.perf_counter()
-    table = leaf_table(truth, results, leaf_regions(truth, scene))
+    scored = dict(results)
+    if others:
+        from gridflow.errors import UsageError
+        from gridflow.estimator import Estimate
+
+        T = data.volume.shape[0]
+        if data.meta["ref_frame"] != (T - 1) // 2:
+            raise UsageError(f"the leaf's reference frame is {data.meta['ref_frame']}; a "
+                             f"method estimates the middle frame {(T - 1) // 2}")
+        interior = next(iter(results.values())).interior
+        for m in others:
+            maps, _ = run_method(m, data.volume, data.focal_length, data.camera_spacing,
+                                 principal_point=data.principal_point)
+            scored[("-", m.name)] = Estimate(maps, m.name, interior, {})
+    table = leaf_table(truth, scored, leaf_regions(truth, scene))
     with atomic_write(csv, "w") as fh:
         table.to_csv(fh, index=False, float_format="%.6g")
     written = [Path(csv)] + F.save(fig_leaf(data, truth, results), fig_dir, "fig_leaf")

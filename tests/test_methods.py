@@ -320,3 +320,50 @@ def test_a_program_past_its_time_is_stopped_with_what_it_started():
         except OSError:          # a process that ended meanwhile
             pass
     assert not left, left
+
+
+def test_the_growth_study_takes_a_method(here):
+    """bench/growth_maps.py --method: a method on the same leaves, scored as gridflow's
+    default is; the default estimate wrapped as a method scores as the default does (the
+    same numbers), with its growth_sd's calibration."""
+    from gridflow.bench.growth_maps import run
+
+    (here / "growthm.py").write_text(
+        "from gridflow.estimator import estimate\n"
+        "def default(volume, focal_length, camera_spacing, *, principal_point=None):\n"
+        "    e = estimate(volume, focal_length, camera_spacing, motion='affine',\n"
+        "                 principal_point=principal_point)\n"
+        "    return {'growth': e['growth'], 'growth_sd': e['growth_sd']}\n")
+    rows = run(seeds=(0,), leaves=("still",), progress=lambda *a, **k: None,
+               methods=["growthm:default"])
+    by = {r["method"]: r for r in rows}
+    a, b = by["growthm:default"], by["gridflow (default)"]
+    for k in ("median_rel_error", "profile_corr", "profile_slope", "within_1sd"):
+        assert a[k] == b[k], k
+    with pytest.raises(MethodError, match="returned no growth map"):
+        run(seeds=(0,), leaves=("still",), progress=lambda *a, **k: None,
+            methods=["mymethods:partial"])
+
+
+def test_the_leaf_table_scores_a_method_on_what_it_returns():
+    """bench/leaf_experiment.leaf_table with a method's maps (growth alone, U_Z alone)
+    beside gridflow's kind of estimate: each scored on its own maps, the other columns
+    NaN; the same pixels (the estimate's interior within each region)."""
+    from gridflow.bench.leaf_experiment import leaf_table
+    from gridflow.estimator import Estimate
+
+    H = W = 20
+    inner = np.zeros((H, W), bool)
+    inner[5:15, 5:15] = True
+    truth = {"growth": np.full((H, W), 2e-3), "Uz": np.full((H, W), 0.1)}
+    masks = {"interior": inner, "edge": np.zeros((H, W), bool), "spot_border": inner,
+             "away": inner}
+    everywhere = np.ones((H, W), bool)
+    results = {("-", "g"): Estimate({"growth": np.full((H, W), 2.2e-3)}, "g", everywhere),
+               ("-", "u"): Estimate({"Uz": np.full((H, W), 0.09)}, "u", everywhere)}
+    t = leaf_table(truth, results, masks).set_index(["model", "region"])
+    assert t.loc[("g", "interior"), "median_rel_growth"] == pytest.approx(0.1)
+    assert np.isnan(t.loc[("g", "interior"), "median_rel_Uz"])
+    assert t.loc[("u", "interior"), "median_rel_Uz"] == pytest.approx(0.1)
+    assert np.isnan(t.loc[("u", "interior"), "median_rel_growth"])
+    assert t.loc[("g", "interior"), "n_valid"] == 100

@@ -55,7 +55,8 @@ def cmd_leaf(a) -> int:
 
     r = run_leaf_experiment(LeafScene(growth=a.growth), a.cache, csv=a.csv,
                             fig_dir=a.fig_dir, sigma=a.sigma, window=a.window,
-                            progress=not a.no_progress)
+                            progress=not a.no_progress, methods=a.methods or (),
+                            method_cmds=a.method_cmds or ())
     print(f"scene {r.folder} ({r.seconds_render:.1f} s to render or find); estimated "
           f"translation and affine motion, bcc, hf, full in {r.seconds_estimate:.1f} s")
     print(r.table.to_string(index=False, float_format=_float))
@@ -176,6 +177,12 @@ def _add_leaf(sub) -> None:
                    help="per-region table to write (default results/leaf.csv)")
     p.add_argument("--fig-dir", default="results/figures",
                    help="where fig_leaf.{png,pdf} go (default results/figures)")
+    p.add_argument("--method", dest="methods", action="append", metavar="METHOD",
+                   help="also run this method (MODULE:FUNCTION or an entry point of "
+                        "gridflow.methods; the README, 'Benchmark your own method'), scored "
+                        "per region alike; repeat for several")
+    p.add_argument("--method-cmd", dest="method_cmds", action="append", metavar="CMD",
+                   help="also run this program ('PROG {input} {output}')")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_leaf)
 

@@ -114,15 +114,23 @@ def cube_table(data, results, margin: float | None = None) -> pd.DataFrame:
     if margin is None:
         margin = next(iter(results.values())).settings["window"] // 2
     masks = regions(data, margin)
+    nan = np.full(face.shape, np.nan)
+    # a method of the benchmark's interface may return some maps only: the others count
+    # as missing (NaN), and the angles need all of U
     angles = {m: (angular_errors(e.maps, data.truth), angular_errors(e.maps, data.truth, SCALE))
+              if {"Ux", "Uy", "Uz"} <= set(e.maps) else None
               for m, e in results.items()}
+    no_angles = {"median_angle_deg": np.nan, "p90_angle_deg": np.nan,
+                 "median_shown_deg": np.nan, "shown_right": np.nan}
     rows = []
     for (fid, fname), region in ((f, r) for f in FACE_NAMES.items() for r in REGIONS
                                  if r in masks):
         for model, e in results.items():
             mask = masks[region] & (face == fid) & e.interior
-            m = e.maps
-            ok = mask & np.isfinite(m["Z"])
+            m = {q: e.maps.get(q, nan) for q in ("Z", "Zx", "Zy", "Ux", "Uy", "Uz",
+                                                  "model_error")}
+            # valid: where the depth is, or (for a method without depth) the motion
+            ok = mask & np.isfinite(m["Z"] if "Z" in e.maps else m["Uz"])
             t = data.truth
             rows.append({
                 "face": fname, "region": region, "model": model,
@@ -135,14 +143,14 @@ def cube_table(data, results, margin: float | None = None) -> pd.DataFrame:
                 "q_abs_Zx": q_abs(m["Zx"], t["Zx"], mask),
                 "q_abs_Zy": q_abs(m["Zy"], t["Zy"], mask),
                 "median_model_error": float(np.nanmedian(m["model_error"][ok]))
-                if ok.any() else float("nan"),
+                if ok.any() and "model_error" in e.maps else float("nan"),
                 # beyond Eq. 22: medians, insensitive to the pixels whose window still
                 # reaches across the cube's edge
                 "median_rel_Uz": float(np.median(np.abs(m["Uz"][ok] / t["Uz"][ok] - 1)))
                 if ok.any() else float("nan"),
                 "median_abs_Zx": float(np.median(np.abs(m["Zx"][ok] - t["Zx"][ok])))
                 if ok.any() else float("nan"),
-                **_angle_stats(*angles[model], mask),
+                **(_angle_stats(*angles[model], mask) if angles[model] else no_angles),
             })
     return pd.DataFrame(rows, columns=COLUMNS)
 
@@ -440,7 +448,7 @@ class CubeReport:
 def run_cube_experiment(scene: CubeScene, cache, *, csv, fig_dir, doc=None,
                         sigma: float = CUBE_SIGMA, window: int = CUBE_WINDOW,
                         temporal_radius: int | None = None,
-                        progress: bool = True) -> CubeReport:
+                        progress: bool = True, methods=(), method_cmds=()) -> CubeReport:
     """Render ``scene`` into ``cache`` (or find it there), estimate, score, draw, write.
 
     Parameters
@@ -461,9 +469,17 @@ def run_cube_experiment(scene: CubeScene, cache, *, csv, fig_dir, doc=None,
         Omega over frames -R..R (default: the estimator's).
     progress : bool
         The render's progress bar.
+    methods, method_cmds
+        Other methods (:mod:`gridflow.bench.methods`), run on the same volume and scored
+        alike over the same pixels (their rows' ``model`` is the method's name, NaN
+        where a map was not returned); the observations, the doc's block and Fig. 1 are
+        gridflow's.
 
     Every output (and the cache) is checked before anything is rendered.
     """
+    from .methods import resolve_methods, run_method
+
+    others = resolve_methods(methods, method_cmds)
     from gridflow.io import atomic_write, check_output
     from gridflow.loader import load_folder
     from gridflow.scenes.render import render_cube
@@ -485,6 +501,24 @@ def run_cube_experiment(scene: CubeScene, cache, *, csv, fig_dir, doc=None,
     t2 = time.perf_counter()
     table = cube_table(data, results)
     checks = observation11(table) + observation12(table)
+    if others:
+        import pandas as pd
+
+        from gridflow.errors import UsageError
+        from gridflow.estimator import Estimate
+
+        T = data.volume.shape[0]
+        if data.meta["ref_frame"] != (T - 1) // 2:
+            raise UsageError(f"the cube's reference frame is {data.meta['ref_frame']}; a "
+                             f"method estimates the middle frame {(T - 1) // 2}")
+        first = next(iter(results.values()))
+        extra = {}
+        for m in others:
+            maps, _ = run_method(m, data.volume, data.focal_length, data.camera_spacing,
+                                 principal_point=data.principal_point)
+            extra[m.name] = Estimate(maps, m.name, first.interior, {})
+        table = pd.concat([table, cube_table(data, extra, margin=first.settings["window"]
+                                             // 2)], ignore_index=True)
     with atomic_write(csv, "w") as fh:
         table.to_csv(fh, index=False, float_format="%.6g")
     written = [Path(csv)]

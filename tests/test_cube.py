@@ -167,3 +167,35 @@ def test_observation12_reads_the_fraction_and_the_medians():
     assert verdicts(table(0.85, 3.0)) == [False, True]
     assert verdicts(table(0.95, 1.5)) == [True, False]
     assert RIGHT_DEG == 22.5
+
+
+def test_the_cube_experiment_takes_a_method(small, tmp_path, monkeypatch):
+    """gridflow cube --method: a method's rows beside the models', scored by the same
+    table code over the same pixels; the full model wrapped as a method gives the full
+    model's rows, a method returning U_Z alone is scored on U_Z (the rest NaN)."""
+    import pandas as pd
+
+    scene, folder = small
+    (tmp_path / "cubem.py").write_text(
+        "from gridflow.estimator import estimate\n"
+        "def full(volume, focal_length, camera_spacing, *, principal_point=None):\n"
+        "    return dict(estimate(volume, focal_length, camera_spacing, sigma=4.0,\n"
+        "                         window=17, principal_point=principal_point).maps)\n"
+        "def uz(volume, focal_length, camera_spacing, *, principal_point=None):\n"
+        "    return {'Uz': full(volume, focal_length, camera_spacing,\n"
+        "                       principal_point=principal_point)['Uz']}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    csv = tmp_path / "cube.csv"
+    assert main(["cube", "--size", "64", "--grid", "3", "--frames", "5", "--sigma", "4",
+                 "--window", "17", "--cache", str(folder.parent), "--csv", str(csv),
+                 "--fig-dir", str(tmp_path / "figs"), "--method", "cubem:full", "--method",
+                 "cubem:uz", "--no-progress"]) == 0
+    t = pd.read_csv(csv)
+    key = ["face", "region"]
+    full = t[t.model == "full"].set_index(key)
+    wrapped = t[t.model == "cubem:full"].set_index(key)
+    for col in ("q_rel_Uz", "q_abs_Ux", "q_rel_Z", "median_angle_deg", "n_valid"):
+        np.testing.assert_allclose(wrapped[col], full.loc[wrapped.index, col], rtol=1e-12)
+    only = t[t.model == "cubem:uz"].set_index(key)
+    np.testing.assert_allclose(only.q_rel_Uz, full.loc[only.index, "q_rel_Uz"], rtol=1e-12)
+    assert only.q_rel_Z.isna().all() and only.median_angle_deg.isna().all()

@@ -23,7 +23,8 @@ def cmd_cube(a) -> int:
                       spotlight=not a.no_spotlight, texture_scale=a.texture_scale)
     r = run_cube_experiment(scene, a.cache, csv=a.csv, fig_dir=a.fig_dir, doc=a.write_doc,
                             sigma=a.sigma, window=a.window, progress=not a.no_progress,
-                            temporal_radius=a.temporal_radius)
+                            temporal_radius=a.temporal_radius, methods=a.methods or (),
+                            method_cmds=a.method_cmds or ())
     print(f"scene {r.folder}: rendered {r.rendered} images in {r.render_seconds} s "
           f"(this run: {r.seconds_render:.1f} s)")
     print(f"estimated bcc, hf, full (sigma {a.sigma:g}, {a.window} taps) in "
@@ -136,6 +137,7 @@ def _add_cube(sub) -> None:
                    help="where fig1.{png,pdf} go (default results/figures)")
     p.add_argument("--write-doc", help="markdown file whose cube section to rewrite")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _method_args(p, "per face and region")
     p.set_defaults(func=cmd_cube)
 
 
@@ -177,12 +179,7 @@ def _add_leaf(sub) -> None:
                    help="per-region table to write (default results/leaf.csv)")
     p.add_argument("--fig-dir", default="results/figures",
                    help="where fig_leaf.{png,pdf} go (default results/figures)")
-    p.add_argument("--method", dest="methods", action="append", metavar="METHOD",
-                   help="also run this method (MODULE:FUNCTION or an entry point of "
-                        "gridflow.methods; the README, 'Benchmark your own method'), scored "
-                        "per region alike; repeat for several")
-    p.add_argument("--method-cmd", dest="method_cmds", action="append", metavar="CMD",
-                   help="also run this program ('PROG {input} {output}')")
+    _method_args(p, "per region")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_leaf)
 
@@ -212,6 +209,15 @@ def _add_peers(sub) -> None:
                         f"out with a message")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_peers)
+
+
+def _method_args(p, scored: str) -> None:
+    p.add_argument("--method", dest="methods", action="append", metavar="METHOD",
+                   help="also run this method (MODULE:FUNCTION or an entry point of "
+                        "gridflow.methods; the README, 'Benchmark your own method'), scored "
+                        f"{scored} alike; repeat for several")
+    p.add_argument("--method-cmd", dest="method_cmds", action="append", metavar="CMD",
+                   help="also run this program ('PROG {input} {output}')")
 
 
 def register(sub) -> None:

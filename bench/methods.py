@@ -284,7 +284,9 @@ def _run_command(cmd, args, timeout, volume, focal_length, camera_spacing, *,
         if not out.is_file():
             raise MethodError(f"method {cmd!r}: wrote nothing at {{output}}")
         try:
-            return load_npz_maps(out)
+            # a gridflow estimate file (gridflow estimate {input} -o {output} as the
+            # program) holds its interior too: not a map
+            return {k: v for k, v in load_npz_maps(out).items() if k != "interior"}
         except GridflowError as exc:
             raise MethodError(f"method {cmd!r}: its output {exc}") from None
 

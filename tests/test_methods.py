@@ -245,6 +245,12 @@ def test_gridflow_estimate_runs_a_method_and_evaluate_scores_it(here, capsys):
         assert main(["evaluate", f, "v.npz"]) == 0
         tables.append(capsys.readouterr().out.splitlines()[1:])
     assert tables[0] == tables[1] == tables[2]
+    # gridflow estimate itself as the program: its estimate file is read as maps
+    gf = f"{sys.executable} -m gridflow.bench.cli estimate {{input}} -o {{output}} --no-progress"
+    assert main(["estimate", "v.npz", "--method-cmd", gf, "-o", "p.npz"]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", "p.npz", "v.npz"]) == 0
+    assert capsys.readouterr().out.splitlines()[1:] == tables[0]
     # the implementation choice is still --method's too
     assert main(["estimate", "v.npz", "--method", "reference", "-o", "r.npz",
                  "--no-progress"]) == 0

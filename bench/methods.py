@@ -254,7 +254,12 @@ def _run_command(cmd, args, timeout, volume, focal_length, camera_spacing, *,
 
     H, W = volume.shape[-2:]
     pp = principal_point if principal_point is not None else ((W - 1) / 2, (H - 1) / 2)
-    with tempfile.TemporaryDirectory(prefix="gridflow-method-") as tmp:
+    # the paths go into the command line, perhaps into a shell's string (sh -c '... {input}'):
+    # a folder whose name a shell would split or expand is avoided where /tmp is there
+    base = tempfile.gettempdir()
+    if shlex.quote(base) != base and Path("/tmp").is_dir():
+        base = "/tmp"
+    with tempfile.TemporaryDirectory(prefix="gridflow-method-", dir=base) as tmp:
         inp, out = Path(tmp) / "input.npz", Path(tmp) / "output.npz"
         save_volume(inp, GridVolume(np.asarray(volume), float(focal_length),
                                     tuple(float(s) for s in camera_spacing),

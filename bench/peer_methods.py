@@ -32,7 +32,7 @@ def epi_structure_tensor(volume, focal_length, camera_spacing, *, principal_poin
     Parameters
     ----------
     volume : ndarray, shape (T, Sy, Sx, H, W)
-        A square camera grid (Sy == Sx).
+        A square camera grid (Sy == Sx) with equal spacing in x and y.
 
     Returns
     -------
@@ -46,6 +46,12 @@ def epi_structure_tensor(volume, focal_length, camera_spacing, *, principal_poin
     if Sy != Sx or Sx < 3:
         raise ValueError(f"the EPI structure tensor needs a square grid of at least 3 x 3 "
                          f"views, got {Sy} x {Sx}")
+    bx, by = (float(b) for b in camera_spacing)
+    if not np.isclose(abs(bx), abs(by), rtol=1e-9):
+        # its horizontal and vertical EPIs both read a disparity per camera step, which are
+        # one disparity only where the steps are equal
+        raise ValueError(f"the EPI structure tensor needs equal camera spacing in x and y, "
+                         f"got {bx:g} and {by:g}")
     d = np.asarray(epi(np.asarray(volume[(T - 1) // 2], float))[0], float)
     with np.errstate(divide="ignore", invalid="ignore"):
         Z = focal_length * camera_spacing[0] / d

@@ -199,3 +199,38 @@ def test_the_cube_experiment_takes_a_method(small, tmp_path, monkeypatch):
     only = t[t.model == "cubem:uz"].set_index(key)
     np.testing.assert_allclose(only.q_rel_Uz, full.loc[only.index, "q_rel_Uz"], rtol=1e-12)
     assert only.q_rel_Z.isna().all() and only.median_angle_deg.isna().all()
+
+
+def test_the_cube_exported_and_scored_from_files_as_the_experiment_scores(small, tmp_path):
+    """gridflow export cube: the rendered volume without truth, the truth apart with the
+    pixels the experiment scores (the estimator's interior at its window); the full
+    model's maps made from the file and scored by gridflow score give the experiment's
+    own rows for the full model (cube_table over the same faces and regions)."""
+    import json
+
+    import pandas as pd
+
+    from gridflow.bench.suites import export_suite, score_suite
+    from gridflow.estimator import estimate
+
+    scene, folder = small
+    export_suite("cube", tmp_path / "s", progress=False, cache=folder.parent, scene=scene,
+                 sigma=4.0, window=17)
+    m = json.loads((tmp_path / "s" / "manifest.json").read_text())
+    assert m["kind"] == "cube" and m["window"] == 17
+    with np.load(tmp_path / "s" / "volumes" / "cube.npz") as z:
+        assert not [k for k in z.files if k.startswith("truth")]
+        e = estimate(z["volume"], float(z["focal_length"]), tuple(z["camera_spacing"]),
+                     principal_point=tuple(z["principal_point"]), sigma=4.0, window=17)
+    (tmp_path / "est").mkdir()
+    np.savez(tmp_path / "est" / "cube.npz", **e.maps)
+    score_suite(tmp_path / "s", tmp_path / "est", tmp_path / "c.csv", method="full")
+    got = pd.read_csv(tmp_path / "c.csv")
+    data = load_folder(folder)
+    want = cube_table(data, run_cube(data, sigma=4.0, window=17, models=("full",)))
+    assert list(got.columns) == list(want.columns) and len(got) == len(want)
+    num = [c for c in want.columns if c not in ("face", "region", "model")]
+    assert (got[["face", "region", "model"]].values == want[["face", "region", "model"]]
+            .values).all()
+    np.testing.assert_allclose(got[num].to_numpy(float), want[num].to_numpy(float),
+                               rtol=1e-6)                   # the CSV keeps 7 digits

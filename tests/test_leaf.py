@@ -14,9 +14,13 @@ SMALL = LeafScene(width=160, height=160, grid=(3, 3), frames=5, growth=4e-3)
 
 
 @pytest.fixture(scope="module")
-def leaf(tmp_path_factory):
-    folder = render_cube(SMALL, tmp_path_factory.mktemp("leaf"), progress=False)
-    return load_folder(folder), leaf_truth(SMALL, margin=14)
+def leaf_folder(tmp_path_factory):
+    return render_cube(SMALL, tmp_path_factory.mktemp("leaf"), progress=False)
+
+
+@pytest.fixture(scope="module")
+def leaf(leaf_folder):
+    return load_folder(leaf_folder), leaf_truth(SMALL, margin=14)
 
 
 def test_truth_mask_matches_the_image(leaf):
@@ -56,6 +60,39 @@ def test_affine_model_measures_the_leafs_growth(leaf):
     assert out["translation"][0] >= 0.5
     assert abs(out["affine"][1] - 4e-3) <= 0.45 * 4e-3
     assert abs(out["pooled"][1] - 4e-3) <= 0.45 * 4e-3
+
+
+def test_the_leaf_exported_and_scored_from_files_as_the_experiment_scores(leaf_folder,
+                                                                          tmp_path):
+    """gridflow export leaf: the rendered volume without truth, the experiment's truth
+    apart (its interior: leaf pixels the window's reach from the edge) with the pixels it
+    scores; the affine full model's maps made from the file and scored by gridflow score
+    give the experiment's table for them (leaf_table over its regions and the
+    estimator's interior)."""
+    import pandas as pd
+
+    from gridflow.bench.leaf_experiment import leaf_regions, leaf_table
+    from gridflow.bench.suites import export_suite, score_suite
+    from gridflow.estimator import estimate
+
+    export_suite("leaf", tmp_path / "s", progress=False, cache=leaf_folder.parent,
+                 scene=SMALL, sigma=5.0, window=21)
+    with np.load(tmp_path / "s" / "volumes" / "leaf.npz") as z:
+        assert not [k for k in z.files if k.startswith("truth")]
+        e = estimate(z["volume"], float(z["focal_length"]), tuple(z["camera_spacing"]),
+                     principal_point=tuple(z["principal_point"]), sigma=5.0, window=21,
+                     motion="affine")
+    (tmp_path / "est").mkdir()
+    np.savez(tmp_path / "est" / "leaf.npz", Uz=e["Uz"], growth=e["growth"])
+    score_suite(tmp_path / "s", tmp_path / "est", tmp_path / "l.csv", method="mine")
+    got = pd.read_csv(tmp_path / "l.csv")
+    truth = leaf_truth(SMALL, margin=21 // 2 + 2)
+    want = leaf_table(truth, {("-", "mine"): e}, leaf_regions(truth, SMALL))
+    assert list(got.columns) == list(want.columns) and len(got) == len(want) == 4
+    assert (got.region == want.region).all() and (got.model == "mine").all()
+    num = [c for c in want.columns if c not in ("region", "motion", "model")]
+    np.testing.assert_allclose(got[num].to_numpy(float), want[num].to_numpy(float),
+                               rtol=1e-6)                   # the CSV keeps 7 digits
 
 
 # --- the leaf as a recording (issue 25) ----------------------------------------------------

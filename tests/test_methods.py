@@ -257,6 +257,14 @@ def test_gridflow_estimate_runs_a_method_and_evaluate_scores_it(here, capsys):
     assert main(["estimate", "v.npz", "--method", "mymethods:raises", "-o", "x.npz"]) == 2
     assert "raised RuntimeError" in capsys.readouterr().err
     assert not (here / "x.npz").exists()
+    # the built-in estimator's settings are refused beside another method, not ignored
+    assert main(["estimate", "v.npz", "--method", "mymethods:wrapped", "--sigma", "4",
+                 "--motion", "affine", "-o", "x.npz"]) == 2
+    err = capsys.readouterr().err
+    assert "--motion, --sigma" in err and "built-in estimator only" in err
+    assert main(["estimate", "v.npz", "--method-cmd", _program(), "--mask", "auto",
+                 "-o", "x.npz"]) == 2
+    assert "--mask" in capsys.readouterr().err and not (here / "x.npz").exists()
 
 
 def test_command_method_checks_its_line():
@@ -373,3 +381,54 @@ def test_the_leaf_table_scores_a_method_on_what_it_returns():
     assert t.loc[("u", "interior"), "median_rel_Uz"] == pytest.approx(0.1)
     assert np.isnan(t.loc[("u", "interior"), "median_rel_growth"])
     assert t.loc[("g", "interior"), "n_valid"] == 100
+
+
+def test_the_growth_leaves_exported_and_scored_from_files_as_the_study_scores(here):
+    """gridflow export growth_maps --only: the study's leaf (the same volume, no truth in
+    it), its truth apart with the pixels the study scores; an estimate made from the file
+    and scored by gridflow score gives the study's numbers for it (its score() over the
+    default estimate's interior, the same code), with its growth_sd's calibration; an
+    estimate without growth is refused by name; a pattern matching nothing is refused and
+    leaves no folder."""
+    import json
+
+    from gridflow.bench.growth_maps import make_leaf, score, uncertainty
+    from gridflow.estimator import estimate
+
+    assert main(["export", "growth_maps", "g", "--only", "still_seed=0",
+                 "--no-progress"]) == 0
+    m = json.loads((here / "g" / "manifest.json").read_text())
+    assert m["kind"] == "growth_maps" and [it["id"] for it in m["items"]] == ["still_seed=0"]
+    with np.load(here / "g" / "volumes" / "still_seed=0.npz") as z:
+        assert not [k for k in z.files if k.startswith("truth")]
+        vol, f, b = z["volume"], float(z["focal_length"]), tuple(z["camera_spacing"])
+    sv = make_leaf("still", 0.003, 0)
+    np.testing.assert_array_equal(vol, sv.volume)
+    e = estimate(vol, f, b, motion="affine")
+    (here / "est").mkdir()
+    np.savez(here / "est" / "still_seed=0.npz", growth=e["growth"], growth_sd=e["growth_sd"])
+    assert main(["score", "g", "est", "-o", "g.csv", "--name", "mine"]) == 0
+    row = pd.read_csv("g.csv").iloc[0]
+    truth = sv.truth["growth"]
+    want = {**score(e["growth"], truth, e.interior),
+            **uncertainty(e["growth"], e["growth_sd"], truth, e.interior)}
+    assert row["method"] == "mine" and row["leaf"] == "still"
+    for k, v in want.items():
+        assert row[k] == pytest.approx(v, rel=1e-6), k       # the CSV keeps 7 digits
+    np.savez(here / "est" / "still_seed=0.npz", Uz=e["Uz"])
+    assert main(["score", "g", "est", "-o", "h.csv"]) == 2 and not (here / "h.csv").exists()
+    assert main(["export", "growth_maps", "none", "--only", "nothing*",
+                 "--no-progress"]) == 2
+    assert not (here / "none").exists()
+    assert not [p for p in here.iterdir() if p.name.startswith(".")]
+
+
+def test_the_epi_peer_refuses_a_grid_of_unequal_spacing():
+    """The EPI structure tensor reads one disparity per camera step from the horizontal and
+    the vertical EPIs: with unequal steps its depth would be wrong, so it refuses."""
+    from gridflow.bench.peer_methods import epi_structure_tensor
+
+    with pytest.raises(ValueError, match="equal camera spacing in x and y, got 0.1 and 0.2"):
+        epi_structure_tensor(np.zeros((1, 3, 3, 16, 16)), 100.0, (0.1, 0.2))
+    assert set(epi_structure_tensor(np.random.default_rng(0).random((1, 3, 3, 16, 16)),
+                                    100.0, (0.1, 0.1))) == {"disparity", "Z"}

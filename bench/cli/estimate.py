@@ -37,12 +37,19 @@ def cmd_estimate(a) -> int:
     return print_lines(estimate(a.input, a.output, o).lines)
 
 
+# estimate's options that only the built-in estimator reads
+_BUILT_IN_ONLY = ("model", "motion", "sigma", "window", "filters", "temporal_radius",
+                  "growth_support", "ref_frame", "no_slant_correction", "no_zoom_correction",
+                  "combine", "views", "shears", "select", "median", "no_fill", "mask",
+                  "every", "first", "last", "workers", "memory", "band_rows", "connect")
+
+
 def _estimate_with_method(a) -> int:
     """--method / --method-cmd: another method's maps on the whole input, as an estimate
     .npz (:func:`gridflow.bench.methods.estimate_with_method`)."""
     from gridflow.errors import UsageError
 
-    from ..methods import command_method, estimate_with_method, load_method
+    from ..methods import DEFAULT_TIMEOUT, command_method, estimate_with_method, load_method
 
     if a.method and a.method_cmd:
         raise UsageError("--method and --method-cmd exclude each other (one method per "
@@ -50,6 +57,16 @@ def _estimate_with_method(a) -> int:
     if not str(a.output).lower().endswith(".npz"):
         raise UsageError(f"-o {a.output}: --method and --method-cmd write an estimate .npz "
                          "(a map series runs the built-in estimator)")
+    # the built-in estimator's options mean nothing to another method: refused, not ignored
+    given = [f"--{k.replace('_', '-')}" for k in _BUILT_IN_ONLY if getattr(a, k, None)
+             not in (None, False)]
+    if a.method and a.method_timeout != DEFAULT_TIMEOUT:
+        given.append("--method-timeout (a program's, --method-cmd)")
+    if given:
+        which = f"--method {a.method}" if a.method else "--method-cmd"
+        raise UsageError(f"{which} runs another method on the whole input; "
+                         f"{', '.join(given)} set(s) gridflow's built-in estimator only "
+                         "(leave it out, or give the method its own settings)")
     from gridflow.estimator import METHODS
 
     from ..methods import MethodError

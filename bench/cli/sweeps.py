@@ -33,7 +33,9 @@ def cmd_sweep(a) -> int:
 def cmd_export(a) -> int:
     from ..suites import export_suite
 
-    return print_lines(export_suite(a.suite, a.folder, progress=not a.no_progress))
+    options = {"cache": a.cache} if a.cache else {}
+    return print_lines(export_suite(a.suite, a.folder, progress=not a.no_progress,
+                                    only=a.only, **options))
 
 
 def cmd_score(a) -> int:
@@ -43,17 +45,32 @@ def cmd_score(a) -> int:
 
 
 def _add_export(sub) -> None:
-    p = sub.add_parser("export", help="write a sweep's volumes as interchange .npz files "
+    from gridflow.scenes.render import RENDER_CACHE
+
+    from ..suites import EXPERIMENTS
+
+    p = sub.add_parser("export", help="write a suite's volumes (a sweep, the cube, the "
+                                      "leaf, the growth leaves) as interchange .npz files "
                                       "with their truth apart and a manifest",
-                       description="Write every point of a sweep spec as an interchange "
-                                   "volume (DIR/volumes/ID.npz, no truth), its truth and "
-                                   "scored pixels (DIR/truth/ID.npz) and DIR/manifest.json "
-                                   "(the spec, gridflow's version, checksums), for methods "
+                       description="Write a suite (every point of a sweep spec, or one of "
+                                   f"the experiments {', '.join(EXPERIMENTS)}) as "
+                                   "interchange volumes (DIR/volumes/ID.npz, no truth), "
+                                   "their truth and scored pixels (DIR/truth/ID.npz) and "
+                                   "DIR/manifest.json (the spec or the experiment's "
+                                   "settings, gridflow's version, checksums), for methods "
                                    "run outside gridflow; gridflow score scores their "
-                                   "estimates.")
-    p.add_argument("suite", help="a sweep spec: a shipped spec's name (smoke, paper, "
-                                 "growth, ...) or a TOML file")
+                                   "estimates into the suite's own table.")
+    p.add_argument("suite", help="a sweep spec (a shipped spec's name: smoke, paper, "
+                                 "growth, ...; or a TOML file) or an experiment: "
+                                 f"{', '.join(EXPERIMENTS)} (cube and leaf render with "
+                                 "POV-Ray the first time)")
     p.add_argument("folder", help="a new (or empty) folder")
+    p.add_argument("--only", metavar="PATTERN",
+                   help="export only the items whose id matches this shell pattern "
+                        "(e.g. 'still_*' of growth_maps)")
+    p.add_argument("--cache", default=None,
+                   help=f"render cache of cube and leaf (default {RENDER_CACHE}, where "
+                        "make figures renders them)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_export)
 
@@ -62,8 +79,9 @@ def _add_score(sub) -> None:
     p = sub.add_parser("score", help="score a folder of estimates of an exported suite",
                        description="Score ESTIMATES/ID.npz (maps under gridflow's quantity "
                                    "names) for every volume of a suite written by gridflow "
-                                   "export, with the code that scores the sweeps, into a "
-                                   "CSV of the sweep's columns.")
+                                   "export, with the code that scores the suite in "
+                                   "gridflow, into its table: a sweep's columns, "
+                                   "cube.csv's, leaf.csv's or growth_maps.csv's.")
     p.add_argument("folder", help="the suite (gridflow export)")
     p.add_argument("estimates", help="folder of ID.npz estimates, one per volume")
     p.add_argument("-o", "--output", required=True, help="output CSV")

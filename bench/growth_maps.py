@@ -72,13 +72,17 @@ def score(growth: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> dict:
         Pixels scored (the estimate's interior).
     """
     ok = mask & np.isfinite(growth)
+    if ok.sum() < 2:            # nothing (or one pixel) to score: no profile either
+        return {"median_rel_error": np.nan, "profile_corr": np.nan, "profile_slope": np.nan,
+                "coverage": float(ok.sum() / max(mask.sum(), 1))}
     rel = np.abs(growth - truth)[ok] / np.abs(truth[ok])
     cols = np.nonzero(ok.any(0))[0]
     est = np.array([np.median(growth[ok[:, c], c]) for c in cols])
     tru = np.array([np.median(truth[ok[:, c], c]) for c in cols])
+    two = cols.size >= 2                  # a profile needs two columns
     return {"median_rel_error": float(np.median(rel)),
-            "profile_corr": float(np.corrcoef(tru, est)[0, 1]),
-            "profile_slope": float(np.polyfit(tru, est, 1)[0]),
+            "profile_corr": float(np.corrcoef(tru, est)[0, 1]) if two else np.nan,
+            "profile_slope": float(np.polyfit(tru, est, 1)[0]) if two else np.nan,
             "coverage": float(ok.sum() / mask.sum())}
 
 
@@ -89,6 +93,8 @@ def uncertainty(growth, sd, truth, mask) -> dict:
     from scipy.stats import spearmanr
 
     ok = mask & np.isfinite(growth) & np.isfinite(sd)
+    if ok.sum() < 2:
+        return {"within_1sd": np.nan, "within_2sd": np.nan, "rank_corr_sd_error": np.nan}
     err = np.abs(growth - truth)[ok]
     return {"within_1sd": float(np.mean(err <= sd[ok])),
             "within_2sd": float(np.mean(err <= 2 * sd[ok])),

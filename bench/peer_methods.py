@@ -47,7 +47,7 @@ def epi_structure_tensor(volume, focal_length, camera_spacing, *, principal_poin
         raise ValueError(f"the EPI structure tensor needs a square grid of at least 3 x 3 "
                          f"views, got {Sy} x {Sx}")
     bx, by = (float(b) for b in camera_spacing)
-    if not np.isclose(abs(bx), abs(by), rtol=1e-9):
+    if not np.isclose(bx, by, rtol=1e-9, atol=0.0):
         # its horizontal and vertical EPIs both read a disparity per camera step, which are
         # one disparity only where the steps are equal
         raise ValueError(f"the EPI structure tensor needs equal camera spacing in x and y, "

@@ -182,6 +182,16 @@ def _growth_suite(suite, options):
 
 
 _SUITES = {"cube": _cube_suite, "leaf": _leaf_suite, "growth_maps": _growth_suite}
+# the settings each kind of suite takes (export_suite's **options)
+_OPTIONS = {"sweep": set(), "cube": {"cache", "scene", "sigma", "window"},
+            "leaf": {"cache", "scene", "sigma", "window"},
+            "growth_maps": {"seeds", "noise", "leaves"}}
+# what a manifest's items and truth files hold, per kind (beyond id, truth, sha256, region)
+_ITEM_KEYS = {"sweep": {"point", "params"}, "cube": {"scene"}, "leaf": {"scene"},
+              "growth_maps": {"leaf", "seed"}}
+_TRUTH_KEYS = {"sweep": set(), "cube": {"face", "Z", "Zx", "Zy", "Ux", "Uy", "Uz"},
+               "leaf": {"leaf", "interior", "spot_angle", "growth", "Uz"},
+               "growth_maps": {"growth"}}
 
 
 def export_suite(suite, folder, *, progress: bool = True, only: str | None = None,
@@ -216,16 +226,29 @@ def export_suite(suite, folder, *, progress: bool = True, only: str | None = Non
     if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
         raise UsageError(f"{folder}: exists and is not an empty folder (export writes a "
                          "suite into a new one)")
+    if folder.resolve() == Path.cwd():
+        raise UsageError(f"{folder}: the current folder; export writes a suite into a new "
+                         "one (a name such as suite/)")
     kind = suite if str(suite) in _SUITES else "sweep"
     make = _SUITES.get(str(suite), _sweep_suite)
+    odd = sorted(set(options) - _OPTIONS[kind])
+    if odd:
+        raise UsageError(f"{', '.join(odd)}: not a setting of suite {suite} (it takes "
+                         f"{', '.join(sorted(_OPTIONS[kind])) or 'none'})")
     name, settings, every = make(suite, dict(options, progress=progress))
     items = [(iid, f) for iid, f in every if only is None or fnmatch.fnmatchcase(iid, only)]
     if not items:
         raise UsageError(f"--only {only!r}: matches none of the ids of suite {name}'s "
                          f"{len(every)} items (e.g. {every[0][0]})")
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
+    target = folder.resolve()
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
     try:
+        # mkdtemp's folder is the owner's alone: the suite gets a new folder's permissions,
+        # so that a method run by another user (a container, a group) reads it
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)
         (tmp / "volumes").mkdir()
         (tmp / "truth").mkdir()
         entries = []
@@ -240,14 +263,14 @@ def export_suite(suite, folder, *, progress: bool = True, only: str | None = Non
                             "truth": f"truth/{iid}.npz",
                             "sha256": {"volume": _sha256(vpath), "truth": _sha256(tpath)}})
         manifest = {"format": SUITE_FORMAT, "suite": name, "kind": kind, **settings,
-                    "gridflow": __version__, "code_fingerprint": _code_fingerprint(),
-                    "items": entries}
+                    "only": only, "gridflow": __version__,
+                    "code_fingerprint": _code_fingerprint(), "items": entries}
         with open(tmp / "manifest.json", "w") as fh:
             json.dump(manifest, fh, indent=1, sort_keys=True)
             fh.write("\n")
-        if folder.exists():
-            folder.rmdir()          # empty (checked above)
-        os.replace(tmp, folder)
+        if target.exists():
+            target.rmdir()          # empty (checked above)
+        os.replace(tmp, target)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -271,11 +294,19 @@ def _manifest(folder: Path) -> dict:
     if kind != "sweep" and kind not in _SUITES:
         raise UsageError(f"{path}: a suite of unknown kind {kind!r} (gridflow scores "
                          f"sweeps and {', '.join(EXPERIMENTS)})")
-    need = {"id", "truth", "sha256"} | ({"point", "params"} if kind == "sweep" else set())
-    for n, it in enumerate(m["items"] if isinstance(m["items"], list) else [None]):
-        if not isinstance(it, dict) or need - set(it) or not isinstance(it["sha256"], dict):
-            raise UsageError(f"{path}: item {n} is not an item of a suite (it needs "
-                             f"{', '.join(sorted(need))})")
+    top = {"suite"} | ({"window"} if kind == "cube" else set())
+    if top - set(m):
+        raise UsageError(f"{path}: a {kind} suite's manifest needs "
+                         f"{', '.join(sorted(top - set(m)))}")
+    need = {"id", "truth", "sha256"} | _ITEM_KEYS[kind]
+    items = m["items"] if isinstance(m["items"], list) else [None]
+    for n, it in enumerate(items):
+        if (not isinstance(it, dict) or need - set(it) or not isinstance(it["sha256"], dict)
+                or "truth" not in it["sha256"]):
+            raise UsageError(f"{path}: item {n} is not an item of a {kind} suite (it needs "
+                             f"{', '.join(sorted(need))}, and sha256.truth)")
+    if not items:
+        raise UsageError(f"{path}: the manifest lists no items")
     return m
 
 
@@ -288,6 +319,9 @@ def _read_estimate(epath: Path, shape) -> dict:
 
     # gridflow's own estimate files hold their interior too
     maps = {k: v for k, v in load_npz_maps(epath).items() if k != "interior"}
+    if not maps:
+        raise UsageError(f"{epath}: holds no maps (expected maps under gridflow's quantity "
+                         "names)")
     unknown = [k for k in maps if k not in QUANTITIES]
     if unknown:
         raise UsageError(f"{epath}: maps under names gridflow does not score: "
@@ -406,6 +440,10 @@ def score_suite(folder, estimates, output, *, method: str | None = None) -> list
         if _sha256(tpath) != it["sha256"]["truth"]:
             raise UsageError(f"{tpath}: does not match the checksum in the manifest")
         truth = load_npz_maps(tpath)
+        lacking = sorted(({"region"} | _TRUTH_KEYS[m["kind"]]) - set(truth))
+        if lacking:
+            raise UsageError(f"{tpath}: a truth file of a {m['kind']} suite without "
+                             f"{', '.join(lacking)}")
         region = truth.pop("region").astype(bool)
         maps = _read_estimate(estimates / f"{it['id']}.npz", region.shape)
         rows += scorer(m, it, truth, region, maps, name)

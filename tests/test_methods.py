@@ -265,6 +265,9 @@ def test_gridflow_estimate_runs_a_method_and_evaluate_scores_it(here, capsys):
     assert main(["estimate", "v.npz", "--method-cmd", _program(), "--mask", "auto",
                  "-o", "x.npz"]) == 2
     assert "--mask" in capsys.readouterr().err and not (here / "x.npz").exists()
+    assert main(["estimate", "v.npz", "--method", "mymethods:wrapped", "--ref-frame", "0",
+                 "-o", "x.npz"]) == 2                    # a 0 is given too
+    assert "--ref-frame set(s)" in capsys.readouterr().err
 
 
 def test_command_method_checks_its_line():
@@ -310,6 +313,29 @@ def test_an_exported_suite_scored_from_files_equals_the_sweep(here, capsys):
     assert main(["score", "suite", "est", "-o", "x.csv"]) == 2
     assert "1 of 4 estimates missing" in capsys.readouterr().err
     assert main(["export", "spec.toml", "suite"]) == 2          # not into a full folder
+    # the review's cases: the suite readable as a new folder is; a manifest, an estimate or
+    # a setting that does not fit is one line naming it
+    import os
+    import stat
+
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE((here / "suite").stat().st_mode) == 0o777 & ~umask
+    assert manifest["only"] is None
+    np.savez(here / "est" / f"{first}.npz")
+    assert main(["score", "suite", "est", "-o", "x.csv"]) == 2
+    assert "holds no maps" in capsys.readouterr().err
+    del manifest["items"][0]["point"]
+    (here / "suite" / "manifest.json").write_text(json.dumps(manifest))
+    assert main(["score", "suite", "est", "-o", "x.csv"]) == 2
+    assert "item 0 is not an item of a sweep suite" in capsys.readouterr().err
+    assert main(["export", "spec.toml", "other", "--cache", "c"]) == 2
+    assert "cache: not a setting of suite spec.toml" in capsys.readouterr().err
+    (here / "empty").mkdir()
+    os.chdir(here / "empty")
+    assert main(["export", str(here / "spec.toml"), "."]) == 2
+    assert "the current folder" in capsys.readouterr().err
+    assert not (here / "other").exists() and not (here / "x.csv").exists()
 
 
 def test_a_program_past_its_time_is_stopped_with_what_it_started():
@@ -415,6 +441,11 @@ def test_the_growth_leaves_exported_and_scored_from_files_as_the_study_scores(he
     assert row["method"] == "mine" and row["leaf"] == "still"
     for k, v in want.items():
         assert row[k] == pytest.approx(v, rel=1e-6), k       # the CSV keeps 7 digits
+    # a map of no value is scored as covering nothing (it was a traceback)
+    np.savez(here / "est" / "still_seed=0.npz", growth=np.full(e["growth"].shape, np.nan))
+    assert main(["score", "g", "est", "-o", "n.csv"]) == 0
+    row = pd.read_csv("n.csv").iloc[0]
+    assert row["coverage"] == 0 and np.isnan(row["median_rel_error"])
     np.savez(here / "est" / "still_seed=0.npz", Uz=e["Uz"])
     assert main(["score", "g", "est", "-o", "h.csv"]) == 2 and not (here / "h.csv").exists()
     assert main(["export", "growth_maps", "none", "--only", "nothing*",
@@ -428,7 +459,8 @@ def test_the_epi_peer_refuses_a_grid_of_unequal_spacing():
     the vertical EPIs: with unequal steps its depth would be wrong, so it refuses."""
     from gridflow.bench.peer_methods import epi_structure_tensor
 
-    with pytest.raises(ValueError, match="equal camera spacing in x and y, got 0.1 and 0.2"):
-        epi_structure_tensor(np.zeros((1, 3, 3, 16, 16)), 100.0, (0.1, 0.2))
+    for b in ((0.1, 0.2), (0.1, -0.1), (1e-9, 2e-9)):
+        with pytest.raises(ValueError, match="equal camera spacing in x and y"):
+            epi_structure_tensor(np.zeros((1, 3, 3, 16, 16)), 100.0, b)
     assert set(epi_structure_tensor(np.random.default_rng(0).random((1, 3, 3, 16, 16)),
                                     100.0, (0.1, 0.1))) == {"disparity", "Z"}

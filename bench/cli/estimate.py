@@ -58,8 +58,9 @@ def _estimate_with_method(a) -> int:
         raise UsageError(f"-o {a.output}: --method and --method-cmd write an estimate .npz "
                          "(a map series runs the built-in estimator)")
     # the built-in estimator's options mean nothing to another method: refused, not ignored
-    given = [f"--{k.replace('_', '-')}" for k in _BUILT_IN_ONLY if getattr(a, k, None)
-             not in (None, False)]
+    # given: anything but the parser's default (None, or False for a flag); 0 is given
+    given = [f"--{k.replace('_', '-')}" for k in _BUILT_IN_ONLY
+             if getattr(a, k, None) is not None and getattr(a, k) is not False]
     if a.method and a.method_timeout != DEFAULT_TIMEOUT:
         given.append("--method-timeout (a program's, --method-cmd)")
     if given:

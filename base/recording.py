@@ -54,9 +54,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .volume import CameraGeometry, Source, SourceError, check_times
+from .volume import CameraGeometry, Source, SourceError, check_geometry, check_times
 
-__all__ = ["open_recording_store", "write_recording", "is_recording_store",
+__all__ = ["open_recording_store", "write_recording", "check_recording", "is_recording_store",
            "MapStore", "RecordingError", "RECORDING_KIND", "MAPS_KIND"]
 
 RECORDING_KIND = "recording"
@@ -130,10 +130,51 @@ class _ZarrReader:
     def __init__(self, path: Path, group):
         self.path, self.group = path, group
         self.volume = group["volume"]
+        vol = self.volume
+        # the unit Zarr stores: a shard where the array is sharded, else a chunk
+        self._grid = tuple(getattr(vol, "shards", None) or vol.chunks)
+        self._per_frame = [range(-(-n // c)) for n, c in zip(vol.shape[1:], self._grid[1:])]
+
+    def chunk_keys(self, frame: int) -> list[str]:
+        """The store keys (paths under ``volume/``) of ``frame``'s chunks."""
+        import itertools
+
+        enc = self.volume.metadata.encode_chunk_key
+        return [enc((frame, *idx)) for idx in itertools.product(*self._per_frame)]
+
+    def check_present(self, start: int, stop: int) -> None:
+        """Every chunk of frames ``start..stop - 1`` is in the store, or a
+        :class:`RecordingError` naming the frame and the file.  Zarr reads a missing chunk
+        as the array's fill value: a frame deleted from a store whose fill value is 0 would
+        read as a black frame."""
+        fv = self.volume.fill_value
+        for t in range(start, stop):
+            for key in self.chunk_keys(t):
+                if not (self.path / "volume" / key).is_file():
+                    raise RecordingError(
+                        f"{self.path}/volume/{key}: frame {t}'s chunk is missing (never "
+                        f"written or deleted; Zarr would read it as the fill value {fv}, "
+                        "and does not store a chunk that equals its fill value throughout: "
+                        "write recordings with fill_value NaN)")
 
     @classmethod
     def open(cls, path: Path) -> Source:
         zarr = _zarr()
+        # what each member is, from its metadata: a volume that is a group, or a truth that
+        # is one array, is named here (it was an AttributeError's traceback)
+        for name, kind in (("volume", "array"), ("truth", "group")):
+            meta = path / name / "zarr.json"
+            if name == "truth" and not meta.exists():
+                continue
+            try:
+                node = json.loads(meta.read_text()).get("node_type")
+            except (OSError, ValueError, AttributeError) as exc:
+                raise RecordingError(f"{meta}: unreadable ({type(exc).__name__}: {exc}); "
+                                     f"expected the {name} {kind}'s metadata") from None
+            if node != kind:
+                want = ("an array (the frames, (T, Sy, Sx, H, W))" if name == "volume" else
+                        "a group (of truth arrays, (T, H, W) each)")
+                raise RecordingError(f"{path}/{name}: a Zarr {node}, expected {want}")
         try:
             group = zarr.open_group(str(path), mode="r")
             vol = group["volume"]
@@ -145,6 +186,12 @@ class _ZarrReader:
             raise RecordingError(f"{path}/volume: shape {vol.shape}, expected (T, Sy, Sx, H, W)")
         if vol.dtype.kind != "f":
             raise RecordingError(f"{path}/volume: pixel type {vol.dtype}, expected float")
+        grid = tuple(getattr(vol, "shards", None) or vol.chunks)
+        if grid[0] != 1:
+            # a step's stamp and a repaired frame's redo go per frame, by its chunk files
+            raise RecordingError(f"{path}/volume: chunks of {grid[0]} frames; gridflow "
+                                 "reads, stamps and redoes steps per frame: write one frame "
+                                 "per chunk (chunks=(1, Sy, Sx, H, W))")
 
         def numbers(key, n, positive=True):
             v = a.get(key)
@@ -173,10 +220,19 @@ class _ZarrReader:
                                      f"{exc})") from None
             times = check_times(raw, T, f"{path}/time_s")
         names = ()
-        if "truth" in group:
-            names = tuple(sorted(k for k, _ in group["truth"].arrays()))
+        if (path / "truth").is_dir():
+            # each truth array opened by itself (zarr's listing loads them concurrently,
+            # and one that fails left the others' errors printed at exit)
+            names = tuple(sorted(p.name for p in (path / "truth").iterdir() if p.is_dir()))
             for n in names:
-                if group["truth"][n].shape != (T, H, W):
+                try:
+                    doc = json.loads((path / "truth" / n / "zarr.json").read_text())
+                    assert isinstance(doc, dict) and doc.get("node_type") == "array"
+                    arr = group["truth"][n]
+                except Exception as exc:
+                    raise RecordingError(f"{path}/truth/{n}/zarr.json: unreadable "
+                                         f"({type(exc).__name__}: {exc})") from None
+                if arr.shape != (T, H, W):
                     raise RecordingError(f"{path}/truth/{n}: shape {group['truth'][n].shape}, "
                                          f"expected {(T, H, W)}")
         units = a.get("units")
@@ -190,6 +246,7 @@ class _ZarrReader:
 
     def read(self, start: int, stop: int, r0: int, r1: int) -> np.ndarray:
         T, Sy, Sx, H, W = self.volume.shape
+        self.check_present(start, stop)
         try:
             if (r0, r1) == (0, H):
                 out = np.asarray(self.volume[start:stop], dtype=np.float64)
@@ -203,14 +260,28 @@ class _ZarrReader:
                 for t in range(start, stop):
                     out[t - start] = self.volume[t, :, :, r0:r1]
         except Exception as exc:
-            raise RecordingError(f"{self.path}/volume: frames {start}..{stop - 1} unreadable "
-                                 f"({type(exc).__name__}: {exc})") from None
+            raise RecordingError(self._unreadable(start, stop, r0, r1, exc)) from None
         bad = ~np.isfinite(out)
         if bad.any():
             k = int(np.argwhere(bad)[0][0]) + start
             raise RecordingError(f"{self.path}/volume: frame {k} holds non-finite intensities "
                                  "(NaN or inf: a frame never written, or damaged)")
         return out
+
+    def _unreadable(self, start, stop, r0, r1, exc) -> str:
+        """The message for frames that Zarr could not decode: the first frame that fails
+        alone, with its chunk files."""
+        for t in range(start, stop):
+            try:
+                self.volume[t, :, :, r0:r1]
+            except Exception as e:
+                keys = self.chunk_keys(t)
+                where = f"volume/{keys[0]}" + (f" (or another of its {len(keys)} chunks)"
+                                               if len(keys) > 1 else "")
+                return (f"{self.path}/{where}: frame {t} unreadable ({type(e).__name__}: "
+                        f"{e})")
+        return (f"{self.path}/volume: frames {start}..{stop - 1} unreadable "
+                f"({type(exc).__name__}: {exc})")
 
     def truth(self, frame: int, names: tuple) -> dict:
         g = self.group["truth"]
@@ -220,13 +291,10 @@ class _ZarrReader:
         return {"kind": "zarr", "dtype": str(self.volume.dtype)}
 
     def files(self, start: int, stop: int) -> list[Path]:
-        # the chunk files of those frames (one chunk per frame as written; any layout:
-        # every file under the frames' chunk-key folders)
-        out = []
-        for k in range(start, stop):
-            d = self.path / "volume" / "c" / str(k)
-            out += sorted(p for p in d.rglob("*") if p.is_file()) if d.is_dir() else [d]
-        return out
+        # the chunk files of those frames (one frame per chunk, checked on opening; any
+        # split of a frame into chunks, any chunk key encoding)
+        return [self.path / "volume" / key for k in range(start, stop)
+                for key in self.chunk_keys(k)]
 
 
 def _numbers_scalar(a: dict, key: str, path: Path) -> tuple:
@@ -236,6 +304,35 @@ def _numbers_scalar(a: dict, key: str, path: Path) -> tuple:
         raise RecordingError(f"{path}/zarr.json: attribute {key!r} must be a finite positive "
                              f"number, got {v!r}")
     return (float(v),)
+
+
+def check_recording(path, *, shape: tuple, focal_length: float, camera_spacing: tuple,
+                    principal_point: tuple | None = None, frame_interval: float | None = None,
+                    truth_names: tuple = ()) -> None:
+    """What :func:`write_recording` checks before any frame is made or written (a command
+    that renders its frames first calls it before rendering): the geometry in the ranges
+    an estimate can use (:func:`gridflow.volume.check_geometry`) and room on the disk for
+    the frames (their float32 size before compression), each refused naming ``path``."""
+    import shutil
+
+    from .io import OutputError
+
+    path = Path(path)
+    T, Sy, Sx, H, W = shape
+    pp = ((W - 1) / 2.0, (H - 1) / 2.0) if principal_point is None else principal_point
+    check_geometry(CameraGeometry(float(focal_length), tuple(float(v) for v in camera_spacing),
+                                  tuple(float(v) for v in pp),
+                                  None if frame_interval is None else float(frame_interval)),
+                   shape, f"{path}")
+    need = 4 * T * H * W * (Sy * Sx + len(truth_names))       # float32, before compression
+    # the folder it goes to, or the nearest that exists (where it will be made)
+    where = next(p for p in (path.parent.absolute(), *path.parent.absolute().parents)
+                 if p.exists())
+    free = shutil.disk_usage(where).free
+    if need > free:
+        raise OutputError(f"{path}: {T} frames of {Sy}x{Sx} views of {H}x{W} px need up to "
+                          f"{need / 2**30:.3g} GiB (float32, before compression); "
+                          f"{where} has {free / 2**30:.3g} GiB free")
 
 
 def write_recording(path, frames, *, shape: tuple, focal_length: float,
@@ -282,6 +379,9 @@ def write_recording(path, frames, *, shape: tuple, focal_length: float,
     T, Sy, Sx, H, W = shape
     if times is not None:
         times = check_times(times, T, f"{path}: times")
+    check_recording(path, shape=shape, focal_length=focal_length,
+                    camera_spacing=camera_spacing, principal_point=principal_point,
+                    frame_interval=frame_interval, truth_names=truth_names)
     tmp = None
     try:
         with signals_deferred():
@@ -374,16 +474,53 @@ class MapStore:
         stamps (``time_s``, ``interval_s``); default ``frames * frame_interval`` and
         ``frame_interval`` where that is known.
         """
-        zarr = _zarr()
+        import shutil
+        import tempfile
+
+        from .io import OutputError, signals_deferred, temp_prefix
+
         path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # made under a temporary name beside it and renamed when whole: a signal, a kill
+        # or a full disk while it is made leaves no store (a store without its key was
+        # refused by the same command as "not gridflow's")
+        with signals_deferred():
+            tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(path), suffix=".tmp",
+                                        dir=path.parent))
+        try:
+            cls._make(tmp, key=key, frames=frames, shape=shape, quantities=quantities,
+                      frame_interval=frame_interval, attrs=attrs, band_rows=band_rows,
+                      times=times, intervals=intervals)
+            try:
+                os.rename(tmp, path)
+            except OSError:
+                raise OutputError(f"{path}: made by another run meanwhile; run the "
+                                  "command again to take it up") from None
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        return cls(path, _zarr().open_group(str(path), mode="r+"))
+
+    @classmethod
+    def _make(cls, path, *, key, frames, shape, quantities, frame_interval, attrs, band_rows,
+              times, intervals) -> None:
+        # every chunk written, also one equal to the fill value (a single step at frame 0):
+        # a missing chunk of a store is then damage (_check_structure)
+        with _zarr().config.set({"array.write_empty_chunks": True}):
+            cls._make_arrays(path, key=key, frames=frames, shape=shape,
+                             quantities=quantities, frame_interval=frame_interval,
+                             attrs=attrs, band_rows=band_rows, times=times,
+                             intervals=intervals)
+
+    @classmethod
+    def _make_arrays(cls, path, *, key, frames, shape, quantities, frame_interval, attrs,
+                     band_rows, times, intervals) -> None:
+        zarr = _zarr()
         H, W = shape
         n = len(frames)
         band = H if band_rows is None else max(1, min(int(band_rows), H))
         nb = -(-H // band)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        group = zarr.open_group(str(path), mode="w-")
-        # the identity last: a store whose creation was cut short has no key and is
-        # refused by reopen_or_refuse as "not a gridflow map store" rather than taken up
+        group = zarr.open_group(str(path), mode="w")
         t = group.create_array("time", shape=(n,), chunks=(n,), dtype="int64",
                                dimension_names=("time",))
         t[:] = np.asarray(frames, dtype=np.int64)
@@ -420,11 +557,12 @@ class MapStore:
                            dimension_names=("time", "band"))
         group.create_array("done", shape=(n, nb), chunks=(1, 1), dtype="uint8", fill_value=0,
                            dimension_names=("time", "band"))
+        # chunks_complete: every chunk of a done band is written, even one equal to the
+        # fill value throughout (write_band), so a missing one is damage
         group.attrs.update({**attrs, "gridflow": {"kind": MAPS_KIND, "version": MAPS_VERSION,
                                                   "key": key, "quantities": list(quantities),
-                                                  "band_rows": band,
+                                                  "band_rows": band, "chunks_complete": True,
                                                   **attrs.get("gridflow", {})}})
-        return cls(path, group)
 
     @classmethod
     def reopen_or_refuse(cls, path, key: str, inputs=()) -> "MapStore | None":
@@ -486,7 +624,111 @@ class MapStore:
             raise RecordingError(f"{path}: a map series of format {g.get('version')}, written "
                                  f"by another gridflow; this one reads format {MAPS_VERSION} "
                                  "(estimate it again into a new store)")
-        return cls(path, zarr.open_group(str(path), mode=mode))
+        store = cls(path, zarr.open_group(str(path), mode=mode))
+        store._check_structure()
+        return store
+
+    def _check_structure(self) -> None:
+        """The arrays and attributes every map series has, or a :class:`RecordingError`
+        naming what is missing or malformed (a damaged store gave tracebacks)."""
+        g = self.attrs.get("gridflow") or {}
+        q = g.get("quantities")
+        if not (isinstance(q, list) and q and all(isinstance(x, str) for x in q)):
+            raise RecordingError(f"{self.path}/zarr.json: attribute gridflow.quantities must "
+                                 f"list the maps' names, got {q!r}; the map series is "
+                                 "damaged (estimate it again into a new store)")
+        b = g.get("band_rows")
+        if not (isinstance(b, int) and not isinstance(b, bool) and b >= 1):
+            raise RecordingError(f"{self.path}/zarr.json: attribute gridflow.band_rows must be "
+                                 f"a positive integer, got {b!r}; the map series is damaged "
+                                 "(estimate it again into a new store)")
+        # each array's metadata read here, one by one: zarr's listing of a group loads
+        # them concurrently, and one that fails left the others' errors printed at exit
+        # ("Task exception was never retrieved")
+        have = set()
+        optional = [a for a in ("time_s", "interval_s") if (self.path / a).is_dir()]
+        for a in ("time", "y", "x", "interior", "stamp", "done", *q, *optional):
+            meta = self.path / a / "zarr.json"
+            if not meta.is_file():
+                continue
+            try:
+                doc = json.loads(meta.read_text())
+                assert isinstance(doc, dict) and doc.get("node_type") == "array"
+                self.group[a]
+            except Exception as exc:
+                raise RecordingError(f"{meta}: unreadable ({type(exc).__name__}: {exc}); "
+                                     "the map series is damaged (estimate it again into a "
+                                     "new store)") from None
+            have.add(a)
+        missing = [a for a in ("time", "y", "x", "interior", "stamp", "done", *q)
+                   if a not in have]
+        # the optional coordinates: a folder without its metadata is one lost, not absent
+        missing += [a for a in optional if a not in have]
+        if missing:
+            raise RecordingError(f"{self.path}: the map series has no array "
+                                 f"{', '.join(missing)}; it is damaged (estimate it again "
+                                 "into a new store)")
+        if g.get("chunks_complete"):
+            # the coordinates, written whole when the store was made: a lost one read as
+            # its fill value (a step's time 0) without a word
+            for a in ("time", "y", "x", "time_s", "interval_s"):
+                if (self.path / a / "zarr.json").is_file() and not (
+                        self.path / a / "c" / "0").is_file():
+                    raise RecordingError(f"{self.path}/{a}/c/0: missing; the map series is "
+                                         "damaged (estimate it again into a new store)")
+        n, H = self.group["time"].shape[0], self.group["y"].shape[0]
+        nb = -(-H // b)
+        for a in ("stamp", "done"):
+            if self.group[a].shape != (n, nb):
+                raise RecordingError(f"{self.path}/{a}: shape {self.group[a].shape}, expected "
+                                     f"{(n, nb)} (steps, bands); the map series is damaged")
+
+    def missing_chunks(self) -> list[tuple[str, int, int]]:
+        """``(array, step, band)`` of every band marked done whose chunk of a map or of
+        the interior is not in the store (deleted, or lost), for a store whose bands are
+        written whole (attribute ``chunks_complete``; none is known for older ones)."""
+        if not self.attrs["gridflow"].get("chunks_complete"):
+            return []
+        out = []
+        done = self.band_done()
+        for b in range(done.shape[1]):
+            if done[:, b].any() and not (self.path / "interior" / "c" / str(b) / "0").is_file():
+                out += [("interior", int(i), b) for i in np.flatnonzero(done[:, b])]
+        for i, b in zip(*np.nonzero(done)):
+            for q in self.quantities:
+                if not (self.path / q / "c" / str(i) / str(b) / "0").is_file():
+                    out.append((q, int(i), int(b)))
+        return out
+
+    def check_done(self) -> None:
+        """Refuse a store a done band of which lacks a chunk (:meth:`missing_chunks`),
+        naming the array, the step and its frame."""
+        miss = self.missing_chunks()
+        if miss:
+            q, i, b = miss[0]
+            f = int(self.frames()[i])
+            raise RecordingError(
+                f"{self.path}/{q}: step {i} (frame {f}) is marked done but its chunk "
+                f"{q}/c/{i}/{b}/0 is missing ({len(miss)} chunk(s) of done steps missing); "
+                "run the same gridflow estimate again to redo those steps")
+
+    def read(self, name: str, step: int | None = None) -> np.ndarray:
+        """Array ``name`` (at ``step``, or whole), read; a chunk Zarr cannot decode is a
+        :class:`RecordingError` naming the array and the step."""
+        try:
+            a = self.group[name]
+            return np.asarray(a[step] if step is not None else a[...])
+        except Exception as exc:
+            where = "the array"
+            if step is not None:
+                try:
+                    where = f"step {step} (frame {int(self.group['time'][step])})"
+                except Exception:        # the frame index itself unreadable
+                    where = f"step {step}"
+            raise RecordingError(f"{self.path}/{name}: {where} unreadable "
+                                 f"({type(exc).__name__}: {exc}); the map series is damaged "
+                                 "there (delete the step's chunk and run the same gridflow "
+                                 "estimate again, or estimate into a new store)") from None
 
     def done(self) -> np.ndarray:
         """Bool per step: every band written."""
@@ -494,10 +736,10 @@ class MapStore:
 
     def band_done(self) -> np.ndarray:
         """Bool per step and band, shape ``(n, bands)``."""
-        return np.asarray(self.group["done"][:], dtype=bool)
+        return np.asarray(self.read("done"), dtype=bool)
 
     def frames(self) -> np.ndarray:
-        return np.asarray(self.group["time"][:])
+        return np.asarray(self.read("time"))
 
     def step_times(self) -> tuple:
         """``(times, intervals)``: each step's time since the first frame and its frame
@@ -506,9 +748,9 @@ class MapStore:
         g = self.group
         n = len(self.frames())
         fi = self.attrs["gridflow"].get("frame_interval")
-        times = (np.asarray(g["time_s"][:], dtype=float) if "time_s" in g else None)
+        times = (np.asarray(self.read("time_s"), dtype=float) if "time_s" in g else None)
         if "interval_s" in g:
-            intervals = np.asarray(g["interval_s"][:], dtype=float)
+            intervals = np.asarray(self.read("interval_s"), dtype=float)
         else:                     # a store written before interval_s
             intervals = np.full(n, float(fi)) if fi else None
         return times, intervals
@@ -516,17 +758,30 @@ class MapStore:
     def stamps(self) -> np.ndarray:
         """Per step and band the stamp of the frames it read (:meth:`gridflow.sources.Source.stamp`),
         shape ``(n, bands)``."""
-        return np.asarray(self.group["stamp"][:])
+        return np.asarray(self.read("stamp"))
 
     def write_band(self, i: int, b: int, maps: dict, interior: np.ndarray,
                    stamp: int = 0) -> None:
         """Write band ``b`` of step ``i`` (maps and interior of its rows, shape
         ``(r1 - r0, W)``) and the stamp of the frames it read, then mark it done."""
+        zarr = _zarr()
         r0, r1 = self.bands()[b]
-        for q in self.quantities:
-            self.group[q][i, r0:r1] = np.asarray(maps[q], dtype=np.float32)
-        # the same for every step (it depends on the image size and settings alone);
-        # written by each, so that any step may come first
-        self.group["interior"][r0:r1] = np.asarray(interior, dtype=bool)
-        self.group["stamp"][i, b] = stamp
-        self.group["done"][i, b] = 1
+        # every chunk written, also one all NaN (a band outside the interior): Zarr leaves
+        # such chunks out by default, and a done band's missing chunk is then damage
+        # (missing_chunks); the arrays are opened inside the setting, which they keep
+        from .io import OutputError
+
+        try:
+            with zarr.config.set({"array.write_empty_chunks": True}):
+                for q in self.quantities:
+                    self.group[q][i, r0:r1] = np.asarray(maps[q], dtype=np.float32)
+                # the same for every step (it depends on the image size and settings
+                # alone); written by each, so that any step may come first
+                self.group["interior"][r0:r1] = np.asarray(interior, dtype=bool)
+                self.group["stamp"][i, b] = stamp
+                self.group["done"][i, b] = 1
+        except OSError as exc:
+            # a full disk said only "[Errno 28] No space left on device": name the store
+            # and the step (the band is not marked done: the next run writes it again)
+            raise OutputError(f"{self.path}: writing step {i} (rows {r0}..{r1 - 1}): "
+                              f"{exc.strerror or exc}") from None

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .volume import Source, SourceError, source_from_volume
+from .volume import Source, SourceError, check_geometry, source_from_volume
 
 __all__ = ["Source", "SourceBackend", "BACKENDS", "open_source", "guess_backend",
            "SourceError"]
@@ -147,4 +147,8 @@ def open_source(path, *, views: int | None = None) -> Source:
 
         raise UsageError(f"--views chooses the central views of an HCI scene; {path} is "
                          f"{backend.description}, which uses all its views")
-    return backend.open(Path(path), views=views)
+    src = backend.open(Path(path), views=views)
+    # every format's geometry in the ranges an estimate can use (each backend checks its
+    # own keys' types; the ranges are one rule for all)
+    check_geometry(src.geometry, src.shape, f"{path}")
+    return src

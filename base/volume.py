@@ -106,6 +106,47 @@ class SourceError(FileFormatError):
     """An input that no backend opens, or that its backend refuses; names the path."""
 
 
+# The ranges a geometry is accepted in: beyond them an estimate overflows or loses every
+# digit, so a number there is a mistake (a unit, an exponent), refused where it is read.
+# The depth Z = f ds / d of a disparity d down to 1e-6 px stays below float32's 3.4e38 while
+# f ds <= 1e30; no camera has a focal length of 1e8 px (a 1e8-px-wide image would see
+# 0.6 degrees at f = 1e10); a principal point a hundred image widths off the image is no
+# lens's.
+MAX_FOCAL_PX = 1e8
+MAX_F_TIMES_SPACING = 1e30
+MAX_PP_OFFSET_IMAGES = 100
+
+
+def check_geometry(geometry, shape, where: str) -> None:
+    """Refuse a camera geometry outside the ranges an estimate can use, naming ``where``
+    (the file and key) and the number: a focal length that is not a finite number in
+    (0, :data:`MAX_FOCAL_PX`] px; a spacing that is not finite, or whose product with the
+    focal length exceeds :data:`MAX_F_TIMES_SPACING` in size; a principal point that is not finite
+    or lies more than :data:`MAX_PP_OFFSET_IMAGES` image sizes from the image; a frame
+    interval that is not a finite positive number of seconds.  ``shape`` is ``(..., H,
+    W)``."""
+    H, W = shape[-2:]
+    f = geometry.focal_length
+    if not (np.isfinite(f) and 0 < f <= MAX_FOCAL_PX):
+        raise SourceError(f"{where}: focal length {f!r} px; expected a finite number in "
+                          f"(0, {MAX_FOCAL_PX:g}] px")
+    for name, b in zip(("ds_x", "ds_y"), geometry.camera_spacing):
+        if not (np.isfinite(b) and abs(b) * f <= MAX_F_TIMES_SPACING):
+            raise SourceError(f"{where}: camera spacing {name} = {b!r}; expected a finite "
+                              f"number with |spacing| x focal length <= "
+                              f"{MAX_F_TIMES_SPACING:g}")
+    span = MAX_PP_OFFSET_IMAGES * max(H, W)
+    for name, c, n in zip(("cx", "cy"), geometry.principal_point, (W, H)):
+        if not (np.isfinite(c) and -span <= c <= n - 1 + span):
+            raise SourceError(f"{where}: principal point {name} = {c!r} px; expected a "
+                              f"finite number within {MAX_PP_OFFSET_IMAGES} image sizes "
+                              f"of the image ({-span:g}..{n - 1 + span:g})")
+    fi = geometry.frame_interval
+    if fi is not None and not (np.isfinite(fi) and fi > 0):
+        raise SourceError(f"{where}: frame interval {fi!r} s; expected a finite positive "
+                          "number of seconds")
+
+
 def check_times(values, frames: int, where: str) -> np.ndarray:
     """Per-frame time stamps as read from a file: ``frames`` finite numbers of seconds,
     strictly increasing, or :class:`SourceError` naming ``where`` (the file and key) and

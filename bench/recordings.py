@@ -84,10 +84,16 @@ def make_leaf_recording(output, scene=None, *, cache=RENDER_CACHE,
     """
     from gridflow.scenes import LEAF_TRUTH_NAMES, LeafRecording, render_cube
 
+    from gridflow.recording import check_recording
+
     out = _new_store(output)
     scene = scene if scene is not None else LeafRecording()
     Sy, Sx = scene.grid
     T = scene.frames
+    # the numbers and the disk space before the renders (minutes), not after them
+    check_recording(out, shape=(T, Sy, Sx, scene.height, scene.width), focal_length=scene.f,
+                    camera_spacing=scene.spacing, frame_interval=scene.frame_interval,
+                    truth_names=LEAF_TRUTH_NAMES)
     size = f"{Sy}x{Sx} views of {scene.width}x{scene.height} px"
     if progress:
         print(f"rendering the leaf with POV-Ray: {T} frames of {size} ({T * Sy * Sx} "

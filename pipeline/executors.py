@@ -264,4 +264,15 @@ def make_client(scheduler: str | None = None, workers: int | None = None, *,
     if "error" in box:
         exc = box["error"]
         raise ClusterError(f"cannot reach {what}: {type(exc).__name__}: {exc}") from None
-    return box["client"]
+    client = box["client"]
+    if scheduler:
+        # a scheduler without workers accepts tasks and never runs them: wait for one
+        # within the timeout, else say so (and what to do) instead of waiting forever
+        try:
+            client.wait_for_workers(1, timeout=timeout)
+        except Exception:           # dask's TimeoutError, or the scheduler gone meanwhile
+            client.close()
+            raise ClusterError(f"the dask scheduler at {scheduler} has no workers (none "
+                               f"joined within {timeout:g} s): start some with 'dask worker "
+                               f"{scheduler}', then run again") from None
+    return client

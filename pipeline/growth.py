@@ -55,11 +55,10 @@ def leaves(maps, quantity: str = "growth"):
     from scipy import ndimage
 
     store = _open_maps(maps, quantity)
-    g = store.group
-    seen = np.zeros(g["interior"].shape, dtype=bool)
+    seen = np.zeros(store.group["interior"].shape, dtype=bool)
     for i in np.flatnonzero(store.done()):
-        seen |= np.isfinite(np.asarray(g[quantity][i]))
-    seen &= np.asarray(g["interior"][:], dtype=bool)
+        seen |= np.isfinite(store.read(quantity, i))
+    seen &= np.asarray(store.read("interior"), dtype=bool)
     labels, n = ndimage.label(seen, structure=np.ones((3, 3)))
     if n == 0:
         return labels, 0
@@ -107,9 +106,8 @@ def growth_table(maps, truth=None, *, quantity: str = "growth", sd_limit: float 
     if rec is not None and quantity not in rec.truth_names:
         raise UsageError(f"{truth}: holds no {quantity!r} truth (it has "
                          f"{', '.join(rec.truth_names) or 'none'})")
-    g = store.group
     frames, done = store.frames(), store.done()
-    interior = np.asarray(g["interior"][:], dtype=bool)
+    interior = np.asarray(store.read("interior"), dtype=bool)
     if rec is not None:
         _check_truth(maps, store, truth, rec, interior.shape, frames)
     if labels is None:
@@ -118,8 +116,8 @@ def growth_table(maps, truth=None, *, quantity: str = "growth", sd_limit: float 
     times, intervals = store.step_times()
     rows = []
     for i in np.flatnonzero(done):
-        m = np.asarray(g[quantity][i], dtype=np.float64)
-        sd = np.asarray(g["growth_sd"][i], dtype=np.float64) if has_sd else None
+        m = np.asarray(store.read(quantity, i), dtype=np.float64)
+        sd = np.asarray(store.read("growth_sd", i), dtype=np.float64) if has_sd else None
         t = rec.truth(int(frames[i]), names=(quantity,))[quantity] if rec is not None else None
         for leaf in range(1, int(labels.max()) + 1):
             where = (labels == leaf) & np.isfinite(m)
@@ -156,6 +154,8 @@ def _open_maps(maps, quantity: str):
     if quantity not in store.quantities:
         raise UsageError(f"{maps}: holds no {quantity!r} maps (it has "
                          f"{', '.join(store.quantities)}); growth needs --motion affine")
+    # a done step whose chunk is gone would read as NaN: an empty row, not an error
+    store.check_done()
     return store
 
 
@@ -179,16 +179,15 @@ def growth_profiles(maps, *, axis: str = "x", quantity: str = "growth",
     if axis not in ("x", "y"):
         raise UsageError(f"--axis must be x or y, got {axis!r}")
     store = _open_maps(maps, quantity)
-    g = store.group
     frames, done = store.frames(), store.done()
-    interior = np.asarray(g["interior"][:], dtype=bool)
+    interior = np.asarray(store.read("interior"), dtype=bool)
     has_sd = "growth_sd" in store.quantities
     times, intervals = store.step_times()
     across = 0 if axis == "x" else 1          # the axis the median runs across
     rows = []
     for i in np.flatnonzero(done):
-        m = np.asarray(g[quantity][i], dtype=np.float64)
-        sd = np.asarray(g["growth_sd"][i], dtype=np.float64) if has_sd else None
+        m = np.asarray(store.read(quantity, i), dtype=np.float64)
+        sd = np.asarray(store.read("growth_sd", i), dtype=np.float64) if has_sd else None
         m = np.where(confident(sd, interior & np.isfinite(m), sd_limit), m, np.nan)
         n = np.isfinite(m).sum(axis=across)
         with warnings.catch_warnings():
@@ -228,8 +227,11 @@ def draw_kymograph(profiles, path, *, axis: str = "x", title: str = "") -> Path:
     extent = [grid.columns.min() - 0.5, grid.columns.max() + 0.5,
               (times.iloc[-1] if hourly else grid.index.max()),
               (times.iloc[0] if hourly else grid.index.min())]
-    im = ax.imshow(v, aspect="auto", extent=extent, vmin=lo, vmax=hi, cmap="viridis",
-                   interpolation="nearest")
+    with warnings.catch_warnings():
+        # one step: a kymograph one row high (matplotlib widens its limits, and warns)
+        warnings.simplefilter("ignore", UserWarning)
+        im = ax.imshow(v, aspect="auto", extent=extent, vmin=lo, vmax=hi, cmap="viridis",
+                       interpolation="nearest")
     ax.set_xlabel(f"position along the image {axis}, px")
     ax.set_ylabel("time, h" if hourly else "frame")
     fig.colorbar(im, ax=ax, label="growth, % area per " + ("hour" if hourly else "frame")
@@ -289,7 +291,7 @@ def _scale_bar(ax, store, step: int, where) -> None:
     from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
     g = store.attrs["gridflow"]
-    Z = float(np.nanmedian(np.asarray(store.group["Z"][step], dtype=float)[where]))
+    Z = float(np.nanmedian(np.asarray(store.read("Z", step), dtype=float)[where]))
     if not (np.isfinite(Z) and Z > 0):
         return
     length, px = scale_bar_length(Z, g["focal_length"], where.shape[1])
@@ -330,14 +332,14 @@ def draw_growth(maps, table, fig_dir, *, times=None, quantity: str = "growth",
     else:
         chosen = [frames[int(round(j))] for j in np.linspace(0, len(frames) - 1,
                                                              min(6, len(frames)))]
-    interior = np.asarray(store.group["interior"][:], dtype=bool)
+    interior = np.asarray(store.read("interior"), dtype=bool)
     per_frame = 100.0          # shown in % per frame
     imgs = []
     steps = [int(table.loc[table["frame"] == f, "step"].iloc[0]) for f in chosen]
     has_sd = "growth_sd" in store.quantities
     for i in steps:
-        m = np.asarray(store.group[quantity][i], dtype=float) * per_frame
-        sd = np.asarray(store.group["growth_sd"][i], dtype=float) if has_sd else None
+        m = np.asarray(store.read(quantity, i), dtype=float) * per_frame
+        sd = np.asarray(store.read("growth_sd", i), dtype=float) if has_sd else None
         imgs.append(np.where(confident(sd, interior & np.isfinite(m), sd_limit), m, np.nan))
     # a colour scale from the 2nd to the 98th percentile: the few pixels where the
     # estimate breaks down (texture-poor spots, the leaf's edge) do not set it
@@ -444,6 +446,14 @@ def growth_report(maps, truth=None, *, fig_dir="growth", csv=None,
     cols = (["leaf"] if several else []) + ["frame", "median", "mean", "p10", "p90",
                                             "n_pixels"] + (["truth", "q_rel"] if truth else [])
     lines = [table[cols].to_string(index=False, float_format=lambda v: f"{v:.3g}")]
+    from gridflow.recording import MapStore
+
+    done = MapStore.open(maps).done()
+    if not done.all():
+        # a series still being written (or cut short): the steps not done are not in the
+        # table, and that is said
+        lines.append(f"{int(done.sum())} of {done.size} steps done; the others are not in "
+                     "the table (run the same gridflow estimate to finish them)")
     n_kept, n_out = table["n_pixels"].sum(), table["n_uncertain"].sum()
     lines.append(
         f"{table['leaf'].nunique()} leaf part(s) of the maps"

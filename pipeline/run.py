@@ -706,6 +706,14 @@ def _prepare_and_run(plan: Plan, sink, o: RunOptions, views, notes, client, outp
     the steps redone because their frames changed)``."""
     sink.prepare(plan)
     todo, changed, kept = sink.todo(plan)
+    damaged = getattr(sink, "damaged", [])
+    if damaged:
+        q, i = damaged[0]
+        steps = sorted({j for _, j in damaged})
+        msg = (f"{output}: {len(steps)} step(s) marked done lack a chunk of their maps (e.g. "
+               f"{q} of step {i}, frame {plan.frames[i]}); estimating them again")
+        _say(o.progress, msg)
+        notes = list(notes) + [msg]
     if o.limit is not None:
         todo = todo[:o.limit]
     report = RunReport(lines=notes, steps=len(plan.frames), skipped=kept)

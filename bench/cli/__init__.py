@@ -28,11 +28,11 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import estimate, experiments, recordings, sweeps
-
 __all__ = ["main", "build_parser"]
 
-GROUPS = (estimate, recordings, sweeps, experiments)
+# the command groups' modules, imported by build_parser (inside main's handling of Ctrl-C:
+# imported here, at the console script's import, an interrupt printed a traceback)
+GROUPS = ("estimate", "recordings", "sweeps", "experiments")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -46,8 +46,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "reproduces the paper's figures.")
     ap.add_argument("--version", action="version", version=f"gridflow {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
+    import importlib
+
     for group in GROUPS:
-        group.register(sub)
+        importlib.import_module(f"{__name__}.{group}").register(sub)
     return ap
 
 
@@ -74,9 +76,16 @@ def _log_to_stderr() -> None:
 
 
 def main(argv=None) -> int:
-    a = build_parser().parse_args(argv)
-    _log_to_stderr()
-    from gridflow.pipeline.executors import Terminated, signals_raise
+    try:
+        # the parser reads the estimator's defaults: numpy, scipy and numba import here, the
+        # first ~0.3 s, where Ctrl-C gave a bare KeyboardInterrupt traceback
+        a = build_parser().parse_args(argv)
+        _log_to_stderr()
+        from gridflow.pipeline.executors import Terminated, signals_raise
+    except KeyboardInterrupt:
+        print("gridflow: interrupted (SIGINT) while starting; nothing was written",
+              file=sys.stderr)
+        return 130
 
     try:
         # SIGTERM raises like Ctrl-C, so that a file being written is removed (atomic

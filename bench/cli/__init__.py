@@ -75,6 +75,16 @@ def _log_to_stderr() -> None:
         log.setLevel(logging.INFO)
 
 
+def _quiet_io_loop() -> None:
+    """After an error or an interrupt, Zarr's reads still in flight on its IO loop (it reads
+    a store's chunks concurrently; one failed, or the run was stopped) are dropped, and
+    asyncio reported each at exit ("Task was destroyed but it is pending!", "Task
+    exception was never retrieved") under the one line that says what happened."""
+    import logging
+
+    logging.getLogger("asyncio").setLevel(logging.CRITICAL)
+
+
 def main(argv=None) -> int:
     try:
         # the parser reads the estimator's defaults: numpy, scipy and numba import here, the
@@ -93,9 +103,11 @@ def main(argv=None) -> int:
         with signals_raise():
             return a.func(a)
     except _user_errors() as exc:
+        _quiet_io_loop()
         print(f"gridflow {a.command}: error: {exc}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, Terminated) as exc:
+        _quiet_io_loop()
         name = "SIGTERM" if isinstance(exc, Terminated) else "SIGINT"
         print(f"gridflow {a.command}: interrupted ({name}); outputs already written are "
               "complete, the one being written was not left behind", file=sys.stderr)

@@ -77,6 +77,12 @@ def _zarr():
     return zarr
 
 
+def _whole_chunks(array):
+    """``array`` writing every chunk, also one equal to its fill value throughout (which
+    Zarr leaves out by default): in a map series a missing chunk is then damage."""
+    return array.with_config({"write_empty_chunks": True})
+
+
 def _gridflow_attrs(path: Path) -> dict | None:
     """The ``gridflow`` attributes of the Zarr group at ``path``, or None when ``path`` is
     not a Zarr v3 group (read from its ``zarr.json`` without opening anything else)."""
@@ -136,11 +142,14 @@ class _ZarrReader:
         self._per_frame = [range(-(-n // c)) for n, c in zip(vol.shape[1:], self._grid[1:])]
 
     def chunk_keys(self, frame: int) -> list[str]:
-        """The store keys (paths under ``volume/``) of ``frame``'s chunks."""
+        """The store keys (paths under ``volume/``) of the chunks holding ``frame`` (with
+        several frames per chunk, those shared with its neighbours: their stamp changes
+        with any of them)."""
         import itertools
 
         enc = self.volume.metadata.encode_chunk_key
-        return [enc((frame, *idx)) for idx in itertools.product(*self._per_frame)]
+        k = frame // self._grid[0]
+        return [enc((k, *idx)) for idx in itertools.product(*self._per_frame)]
 
     def check_present(self, start: int, stop: int) -> None:
         """Every chunk of frames ``start..stop - 1`` is in the store, or a
@@ -186,12 +195,6 @@ class _ZarrReader:
             raise RecordingError(f"{path}/volume: shape {vol.shape}, expected (T, Sy, Sx, H, W)")
         if vol.dtype.kind != "f":
             raise RecordingError(f"{path}/volume: pixel type {vol.dtype}, expected float")
-        grid = tuple(getattr(vol, "shards", None) or vol.chunks)
-        if grid[0] != 1:
-            # a step's stamp and a repaired frame's redo go per frame, by its chunk files
-            raise RecordingError(f"{path}/volume: chunks of {grid[0]} frames; gridflow "
-                                 "reads, stamps and redoes steps per frame: write one frame "
-                                 "per chunk (chunks=(1, Sy, Sx, H, W))")
 
         def numbers(key, n, positive=True):
             v = a.get(key)
@@ -291,8 +294,7 @@ class _ZarrReader:
         return {"kind": "zarr", "dtype": str(self.volume.dtype)}
 
     def files(self, start: int, stop: int) -> list[Path]:
-        # the chunk files of those frames (one frame per chunk, checked on opening; any
-        # split of a frame into chunks, any chunk key encoding)
+        # the chunk files holding those frames (any chunk layout, any key encoding)
         return [self.path / "volume" / key for k in range(start, stop)
                 for key in self.chunk_keys(k)]
 
@@ -494,6 +496,8 @@ class MapStore:
             try:
                 os.rename(tmp, path)
             except OSError:
+                if not path.exists():
+                    raise
                 raise OutputError(f"{path}: made by another run meanwhile; run the "
                                   "command again to take it up") from None
         except BaseException:
@@ -504,26 +508,17 @@ class MapStore:
     @classmethod
     def _make(cls, path, *, key, frames, shape, quantities, frame_interval, attrs, band_rows,
               times, intervals) -> None:
-        # every chunk written, also one equal to the fill value (a single step at frame 0):
-        # a missing chunk of a store is then damage (_check_structure)
-        with _zarr().config.set({"array.write_empty_chunks": True}):
-            cls._make_arrays(path, key=key, frames=frames, shape=shape,
-                             quantities=quantities, frame_interval=frame_interval,
-                             attrs=attrs, band_rows=band_rows, times=times,
-                             intervals=intervals)
-
-    @classmethod
-    def _make_arrays(cls, path, *, key, frames, shape, quantities, frame_interval, attrs,
-                     band_rows, times, intervals) -> None:
         zarr = _zarr()
         H, W = shape
         n = len(frames)
         band = H if band_rows is None else max(1, min(int(band_rows), H))
         nb = -(-H // band)
         group = zarr.open_group(str(path), mode="w")
+        # every chunk written, also one equal to the fill value (a single step at frame 0):
+        # a missing chunk of a store is then damage (_check_structure)
         t = group.create_array("time", shape=(n,), chunks=(n,), dtype="int64",
                                dimension_names=("time",))
-        t[:] = np.asarray(frames, dtype=np.int64)
+        _whole_chunks(t)[:] = np.asarray(frames, dtype=np.int64)
         t.attrs.update({"long_name": "frame index"})
         coords = []
         if times is None and frame_interval is not None:
@@ -532,20 +527,20 @@ class MapStore:
         if times is not None:
             ts = group.create_array("time_s", shape=(n,), chunks=(n,), dtype="float64",
                                     dimension_names=("time",))
-            ts[:] = np.asarray(times, dtype=np.float64)
+            _whole_chunks(ts)[:] = np.asarray(times, dtype=np.float64)
             ts.attrs.update({"units": "s", "long_name": "time since the first frame"})
             coords.append("time_s")
         if intervals is not None:
             ti = group.create_array("interval_s", shape=(n,), chunks=(n,), dtype="float64",
                                     dimension_names=("time",))
-            ti[:] = np.asarray(intervals, dtype=np.float64)
+            _whole_chunks(ti)[:] = np.asarray(intervals, dtype=np.float64)
             ti.attrs.update({"units": "s", "long_name": "frame interval over the step's "
                                                         "temporal window"})
             coords.append("interval_s")
         for name, size in (("y", H), ("x", W)):
             a = group.create_array(name, shape=(size,), chunks=(size,), dtype="int64",
                                    dimension_names=(name,))
-            a[:] = np.arange(size)
+            _whole_chunks(a)[:] = np.arange(size)
         for q in quantities:
             a = group.create_array(q, shape=(n, H, W), chunks=(1, band, W), dtype="float32",
                                    fill_value=np.nan, dimension_names=("time", "y", "x"))
@@ -764,22 +759,22 @@ class MapStore:
                    stamp: int = 0) -> None:
         """Write band ``b`` of step ``i`` (maps and interior of its rows, shape
         ``(r1 - r0, W)``) and the stamp of the frames it read, then mark it done."""
-        zarr = _zarr()
+        from .io import OutputError
+
         r0, r1 = self.bands()[b]
         # every chunk written, also one all NaN (a band outside the interior): Zarr leaves
         # such chunks out by default, and a done band's missing chunk is then damage
-        # (missing_chunks); the arrays are opened inside the setting, which they keep
-        from .io import OutputError
-
+        # (missing_chunks).  Each array gets the setting itself: zarr.config is one for the
+        # process, and the steps write from several threads at once
+        whole = _whole_chunks
         try:
-            with zarr.config.set({"array.write_empty_chunks": True}):
-                for q in self.quantities:
-                    self.group[q][i, r0:r1] = np.asarray(maps[q], dtype=np.float32)
-                # the same for every step (it depends on the image size and settings
-                # alone); written by each, so that any step may come first
-                self.group["interior"][r0:r1] = np.asarray(interior, dtype=bool)
-                self.group["stamp"][i, b] = stamp
-                self.group["done"][i, b] = 1
+            for q in self.quantities:
+                whole(self.group[q])[i, r0:r1] = np.asarray(maps[q], dtype=np.float32)
+            # the same for every step (it depends on the image size and settings alone);
+            # written by each, so that any step may come first
+            whole(self.group["interior"])[r0:r1] = np.asarray(interior, dtype=bool)
+            whole(self.group["stamp"])[i, b] = stamp
+            whole(self.group["done"])[i, b] = 1
         except OSError as exc:
             # a full disk said only "[Errno 28] No space left on device": name the store
             # and the step (the band is not marked done: the next run writes it again)

@@ -710,8 +710,9 @@ def _prepare_and_run(plan: Plan, sink, o: RunOptions, views, notes, client, outp
     if damaged:
         q, i = damaged[0]
         steps = sorted({j for _, j in damaged})
-        msg = (f"{output}: {len(steps)} step(s) marked done lack a chunk of their maps (e.g. "
-               f"{q} of step {i}, frame {plan.frames[i]}); estimating them again")
+        msg = (f"{output}: {len(steps)} step(s) marked done lack a chunk of their maps or "
+               f"the interior (e.g. {q} of step {i}, frame {plan.frames[i]}); estimating "
+               "them again")
         _say(o.progress, msg)
         notes = list(notes) + [msg]
     if o.limit is not None:

@@ -201,11 +201,10 @@ class MapSeriesSink:
         the steps done whole and kept."""
         done = np.all([s.band_done() for s in self.stores.values()], axis=0)
         # a done band that lost a chunk (deleted, a disk's damage) is done again, and said
-        self.damaged = sorted({(q, i) for s in self.stores.values()
-                               for q, i, b in s.missing_chunks()}, key=lambda x: x[1])
-        for s in self.stores.values():
-            for _, i, b in s.missing_chunks():
-                done[i, b] = False
+        missing = [m for s in self.stores.values() for m in s.missing_chunks()]
+        self.damaged = sorted({(q, i) for q, i, _ in missing}, key=lambda x: x[1])
+        for _, i, b in missing:
+            done[i, b] = False
         stamps = next(iter(self.stores.values())).stamps()
         changed = [i for i in np.flatnonzero(done.any(axis=1))
                    if (plan.stamp(i) != stamps[i][done[i]]).any()]

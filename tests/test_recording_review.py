@@ -341,6 +341,36 @@ def test_a_full_disk_names_the_store_and_the_step(tmp_path, monkeypatch):
     assert not MapStore.open(tmp_path / "m.zarr").band_done().any()
 
 
+def damage_property(files, *, default_examples: int):
+    """A hypothesis property over damage to a store: up to three of ``files`` each
+    deleted, emptied or overwritten with junk; ``default_examples`` fixed cases, or
+    GRIDFLOW_DAMAGE_EXAMPLES=N fresh ones."""
+    from hypothesis import HealthCheck, given, settings, strategies as st
+
+    n = os.environ.get("GRIDFLOW_DAMAGE_EXAMPLES")
+
+    def wrap(fn):
+        return settings(max_examples=int(n or default_examples), deadline=None,
+                        derandomize=not n, suppress_health_check=list(HealthCheck))(
+            given(st.lists(st.tuples(st.sampled_from(files),
+                                     st.sampled_from(["rm", "empty", "junk"])),
+                           min_size=1, max_size=3))(fn))
+    return wrap
+
+
+def apply_damage(store: Path, copy: Path, damage) -> None:
+    """``store`` copied to ``copy``, then each ``(file, how)`` of ``damage`` done to it."""
+    shutil.copytree(store, copy)
+    for rel, how in damage:
+        p = copy / rel
+        if not p.exists():
+            continue
+        if how == "rm":
+            p.unlink()
+        else:
+            p.write_bytes(b"" if how == "empty" else b"\x00junk{")
+
+
 def test_random_damage_to_a_map_series_is_read_right_or_named(series, tmp_path_factory):
     """Property: any file of a map series deleted, emptied or overwritten with junk (up to
     three at once; GRIDFLOW_DAMAGE_EXAMPLES=N draws N fresh cases instead of the fixed
@@ -351,8 +381,6 @@ def test_random_damage_to_a_map_series_is_read_right_or_named(series, tmp_path_f
     import subprocess
     import sys
 
-    from hypothesis import HealthCheck, given, settings, strategies as st
-
     files = sorted(str(p.relative_to(series)) for p in series.rglob("*") if p.is_file())
     base = tmp_path_factory.mktemp("damage")
     ref_csv = base / "ref.csv"
@@ -361,23 +389,10 @@ def test_random_damage_to_a_map_series_is_read_right_or_named(series, tmp_path_f
     ref = ref_csv.read_text()
     counter = iter(range(10**6))
 
-    @settings(max_examples=int(os.environ.get("GRIDFLOW_DAMAGE_EXAMPLES", 25)), deadline=None,
-              derandomize=not os.environ.get("GRIDFLOW_DAMAGE_EXAMPLES"),
-              suppress_health_check=list(HealthCheck))
-    @given(st.lists(st.tuples(st.sampled_from(files), st.sampled_from(["rm", "empty",
-                                                                      "junk"])),
-                    min_size=1, max_size=3))
+    @damage_property(files, default_examples=25)
     def check(damage):
         d = base / f"d{next(counter)}.zarr"
-        shutil.copytree(series, d)
-        for rel, how in damage:
-            p = d / rel
-            if not p.exists():
-                continue
-            if how == "rm":
-                p.unlink()
-            else:
-                p.write_bytes(b"" if how == "empty" else b"\x00junk{")
+        apply_damage(series, d, damage)
         csv = d.with_suffix(".csv")
         r = subprocess.run([sys.executable, "-m", "gridflow.bench.cli", "growth", str(d),
                             "--fig-dir", str(d.with_suffix(".figs")), "--csv", str(csv)],
@@ -405,8 +420,6 @@ def test_random_damage_to_a_recording_is_read_right_or_named(recording, tmp_path
     import subprocess
     import sys
 
-    from hypothesis import HealthCheck, given, settings, strategies as st
-
     from builders import store_arrays
 
     files = sorted(str(p.relative_to(recording)) for p in recording.rglob("*") if p.is_file())
@@ -416,23 +429,10 @@ def test_random_damage_to_a_recording_is_read_right_or_named(recording, tmp_path
     want = {k: v for k, v in store_arrays(ref).items() if k != "stamp"}
     counter = iter(range(10**6))
 
-    @settings(max_examples=int(os.environ.get("GRIDFLOW_DAMAGE_EXAMPLES", 10)), deadline=None,
-              derandomize=not os.environ.get("GRIDFLOW_DAMAGE_EXAMPLES"),
-              suppress_health_check=list(HealthCheck))
-    @given(st.lists(st.tuples(st.sampled_from(files), st.sampled_from(["rm", "empty",
-                                                                      "junk"])),
-                    min_size=1, max_size=3))
+    @damage_property(files, default_examples=10)
     def check(damage):
         d = base / f"r{next(counter)}.zarr"
-        shutil.copytree(recording, d)
-        for rel, how in damage:
-            p = d / rel
-            if not p.exists():
-                continue
-            if how == "rm":
-                p.unlink()
-            else:
-                p.write_bytes(b"" if how == "empty" else b"\x00junk{")
+        apply_damage(recording, d, damage)
         out = d.with_suffix(".maps.zarr")
         r = subprocess.run([sys.executable, "-m", "gridflow.bench.cli", "estimate", str(d),
                             "-o", str(out), "--every", "4", *EST], capture_output=True,

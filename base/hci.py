@@ -329,12 +329,9 @@ def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
     list of Path
         The files written.
     """
-    import shutil
-    import tempfile
-
     import imageio.v3 as iio
 
-    from .io import current_umask, signals_deferred, temp_prefix
+    from .io import folder_beside
 
     folder = Path(folder)
     v = np.asarray(views, dtype=float)
@@ -347,16 +344,9 @@ def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
     clash = [folder / nm for nm in names if (folder / nm).exists()]
     if clash:
         raise FileExistsError(f"{clash[0]}: exists; write the scene into an empty folder")
-    folder.parent.mkdir(parents=True, exist_ok=True)
     # the whole scene goes to a temporary folder beside the target first, then into
     # place by renames: a failure part-way (a full disk) leaves no partial scene
-    tmp = None
-    try:
-        # the folder and the name that removes it come into being together: a signal in
-        # between would leave the folder behind
-        with signals_deferred():
-            tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(folder), suffix=".tmp",
-                                        dir=folder.parent))
+    with folder_beside(folder) as tmp:
         files = []
         for i, nm in enumerate(names):
             img = np.round(np.clip(v[i // n, i % n], 0.0, 1.0) * 255).astype(np.uint8)
@@ -372,14 +362,10 @@ def write_hci(folder, views: np.ndarray, *, disparity: np.ndarray | None = None,
             with open(tmp / "parameters.cfg", "w") as fh:
                 cp.write(fh)
             files.append("parameters.cfg")
-        os.chmod(tmp, 0o777 & ~current_umask())
         if not folder.exists():
             os.rename(tmp, folder)
         else:
             for nm in files:
                 os.replace(tmp / nm, folder / nm)
-    finally:
-        if tmp is not None and tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
     written = [folder / nm for nm in files]
     return written

@@ -451,6 +451,31 @@ class atomic_write_set:
 
 
 @contextmanager
+def folder_beside(path):
+    """A temporary folder beside ``path`` to build a folder output in (yielded), with a new
+    folder's permissions; the caller renames it to ``path`` when whole.  Whatever is left
+    of it when the block ends (a failure, a signal, or no rename) is removed, so an
+    interrupted output leaves nothing at ``path``."""
+    import shutil
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = None
+    try:
+        # the folder and the name that removes it come into being together: a signal in
+        # between would leave the folder behind
+        with signals_deferred():
+            tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(path), suffix=".tmp",
+                                        dir=path.parent))
+        # mkdtemp's folder is the owner's alone
+        os.chmod(tmp, 0o777 & ~current_umask())
+        yield tmp
+    finally:
+        if tmp is not None and tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+@contextmanager
 def signals_deferred():
     """SIGINT and SIGTERM received inside the block are acted on when it ends.
 

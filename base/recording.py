@@ -83,6 +83,19 @@ def _whole_chunks(array):
     return array.with_config({"write_empty_chunks": True})
 
 
+def _node_type(meta: Path, expected: str) -> str:
+    """The ``node_type`` that the Zarr metadata file ``meta`` states, or a
+    :class:`RecordingError` naming the file where it is unreadable (read here, one member at
+    a time: zarr's own listing of a group loads its members concurrently, and one that
+    failed left the others' errors printed at exit)."""
+    try:
+        node = json.loads(meta.read_text()).get("node_type")
+    except (OSError, ValueError, AttributeError) as exc:
+        raise RecordingError(f"{meta}: unreadable ({type(exc).__name__}: {exc}); expected "
+                             f"the metadata of a Zarr {expected}") from None
+    return node
+
+
 def _gridflow_attrs(path: Path) -> dict | None:
     """The ``gridflow`` attributes of the Zarr group at ``path``, or None when ``path`` is
     not a Zarr v3 group (read from its ``zarr.json`` without opening anything else)."""
@@ -175,11 +188,7 @@ class _ZarrReader:
             meta = path / name / "zarr.json"
             if name == "truth" and not meta.exists():
                 continue
-            try:
-                node = json.loads(meta.read_text()).get("node_type")
-            except (OSError, ValueError, AttributeError) as exc:
-                raise RecordingError(f"{meta}: unreadable ({type(exc).__name__}: {exc}); "
-                                     f"expected the {name} {kind}'s metadata") from None
+            node = _node_type(meta, kind)
             if node != kind:
                 want = ("an array (the frames, (T, Sy, Sx, H, W))" if name == "volume" else
                         "a group (of truth arrays, (T, H, W) each)")
@@ -224,20 +233,21 @@ class _ZarrReader:
             times = check_times(raw, T, f"{path}/time_s")
         names = ()
         if (path / "truth").is_dir():
-            # each truth array opened by itself (zarr's listing loads them concurrently,
-            # and one that fails left the others' errors printed at exit)
+            # each truth array opened by itself (_node_type)
             names = tuple(sorted(p.name for p in (path / "truth").iterdir() if p.is_dir()))
             for n in names:
+                meta = path / "truth" / n / "zarr.json"
+                if _node_type(meta, "array") != "array":
+                    raise RecordingError(f"{path}/truth/{n}: not a Zarr array (expected the "
+                                         f"truth {n}, (T, H, W))")
                 try:
-                    doc = json.loads((path / "truth" / n / "zarr.json").read_text())
-                    assert isinstance(doc, dict) and doc.get("node_type") == "array"
                     arr = group["truth"][n]
                 except Exception as exc:
-                    raise RecordingError(f"{path}/truth/{n}/zarr.json: unreadable "
-                                         f"({type(exc).__name__}: {exc})") from None
+                    raise RecordingError(f"{meta}: unreadable ({type(exc).__name__}: "
+                                         f"{exc})") from None
                 if arr.shape != (T, H, W):
-                    raise RecordingError(f"{path}/truth/{n}: shape {group['truth'][n].shape}, "
-                                         f"expected {(T, H, W)}")
+                    raise RecordingError(f"{path}/truth/{n}: shape {arr.shape}, expected "
+                                         f"{(T, H, W)}")
         units = a.get("units")
         if units is not None and not isinstance(units, str):
             raise RecordingError(f"{path}/zarr.json: attribute 'units' must be a string (the "
@@ -368,27 +378,19 @@ def write_recording(path, frames, *, shape: tuple, focal_length: float,
     units : str, optional
         The world unit of lengths (``"mm"``; attribute ``units``), default "world units".
     """
-    import shutil
-    import tempfile
-
-    from .io import OutputError, signals_deferred, temp_prefix
+    from .io import OutputError, folder_beside
 
     zarr = _zarr()
     path = Path(path)
     if path.exists() or path.is_symlink():
         raise OutputError(f"{path}: exists; a recording is written to a new name")
-    path.parent.mkdir(parents=True, exist_ok=True)
     T, Sy, Sx, H, W = shape
     if times is not None:
         times = check_times(times, T, f"{path}: times")
     check_recording(path, shape=shape, focal_length=focal_length,
                     camera_spacing=camera_spacing, principal_point=principal_point,
                     frame_interval=frame_interval, truth_names=truth_names)
-    tmp = None
-    try:
-        with signals_deferred():
-            tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(path), suffix=".tmp",
-                                        dir=path.parent))
+    with folder_beside(path) as tmp:
         group = zarr.open_group(str(tmp), mode="w")
         group.attrs.update({"gridflow": {"kind": RECORDING_KIND, "version": FORMAT_VERSION,
                                          "source": source or {}},
@@ -423,10 +425,6 @@ def write_recording(path, frames, *, shape: tuple, focal_length: float,
         if k + 1 != T:
             raise ValueError(f"{k + 1} frames given, {T} stated")
         os.rename(tmp, path)
-        tmp = None
-    finally:
-        if tmp is not None and tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
     return path
 
 
@@ -476,20 +474,13 @@ class MapStore:
         stamps (``time_s``, ``interval_s``); default ``frames * frame_interval`` and
         ``frame_interval`` where that is known.
         """
-        import shutil
-        import tempfile
-
-        from .io import OutputError, signals_deferred, temp_prefix
+        from .io import OutputError, folder_beside
 
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         # made under a temporary name beside it and renamed when whole: a signal, a kill
         # or a full disk while it is made leaves no store (a store without its key was
         # refused by the same command as "not gridflow's")
-        with signals_deferred():
-            tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(path), suffix=".tmp",
-                                        dir=path.parent))
-        try:
+        with folder_beside(path) as tmp:
             cls._make(tmp, key=key, frames=frames, shape=shape, quantities=quantities,
                       frame_interval=frame_interval, attrs=attrs, band_rows=band_rows,
                       times=times, intervals=intervals)
@@ -500,9 +491,6 @@ class MapStore:
                     raise
                 raise OutputError(f"{path}: made by another run meanwhile; run the "
                                   "command again to take it up") from None
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
         return cls(path, _zarr().open_group(str(path), mode="r+"))
 
     @classmethod
@@ -637,28 +625,24 @@ class MapStore:
             raise RecordingError(f"{self.path}/zarr.json: attribute gridflow.band_rows must be "
                                  f"a positive integer, got {b!r}; the map series is damaged "
                                  "(estimate it again into a new store)")
-        # each array's metadata read here, one by one: zarr's listing of a group loads
-        # them concurrently, and one that fails left the others' errors printed at exit
-        # ("Task exception was never retrieved")
-        have = set()
-        optional = [a for a in ("time_s", "interval_s") if (self.path / a).is_dir()]
-        for a in ("time", "y", "x", "interior", "stamp", "done", *q, *optional):
+        # each array's metadata read one by one (_node_type); the optional coordinates
+        # count where their folder is: a folder without its metadata is one lost
+        names = ["time", "y", "x", "interior", "stamp", "done", *q,
+                 *(a for a in ("time_s", "interval_s") if (self.path / a).is_dir())]
+        missing = []
+        for a in names:
             meta = self.path / a / "zarr.json"
             if not meta.is_file():
+                missing.append(a)
                 continue
             try:
-                doc = json.loads(meta.read_text())
-                assert isinstance(doc, dict) and doc.get("node_type") == "array"
+                if _node_type(meta, "array") != "array":
+                    raise ValueError("not an array")
                 self.group[a]
             except Exception as exc:
                 raise RecordingError(f"{meta}: unreadable ({type(exc).__name__}: {exc}); "
                                      "the map series is damaged (estimate it again into a "
                                      "new store)") from None
-            have.add(a)
-        missing = [a for a in ("time", "y", "x", "interior", "stamp", "done", *q)
-                   if a not in have]
-        # the optional coordinates: a folder without its metadata is one lost, not absent
-        missing += [a for a in optional if a not in have]
         if missing:
             raise RecordingError(f"{self.path}: the map series has no array "
                                  f"{', '.join(missing)}; it is damaged (estimate it again "
@@ -766,15 +750,14 @@ class MapStore:
         # such chunks out by default, and a done band's missing chunk is then damage
         # (missing_chunks).  Each array gets the setting itself: zarr.config is one for the
         # process, and the steps write from several threads at once
-        whole = _whole_chunks
         try:
             for q in self.quantities:
-                whole(self.group[q])[i, r0:r1] = np.asarray(maps[q], dtype=np.float32)
+                _whole_chunks(self.group[q])[i, r0:r1] = np.asarray(maps[q], dtype=np.float32)
             # the same for every step (it depends on the image size and settings alone);
             # written by each, so that any step may come first
-            whole(self.group["interior"])[r0:r1] = np.asarray(interior, dtype=bool)
-            whole(self.group["stamp"])[i, b] = stamp
-            whole(self.group["done"])[i, b] = 1
+            _whole_chunks(self.group["interior"])[r0:r1] = np.asarray(interior, dtype=bool)
+            _whole_chunks(self.group["stamp"])[i, b] = stamp
+            _whole_chunks(self.group["done"])[i, b] = 1
         except OSError as exc:
             # a full disk said only "[Errno 28] No space left on device": name the store
             # and the step (the band is not marked done: the next run writes it again)

@@ -82,9 +82,8 @@ def make_leaf_recording(output, scene=None, *, cache=RENDER_CACHE,
     ``cache``, then copied frame by frame into the store beside each frame's truth
     (memory: one frame).
     """
-    from gridflow.scenes import LEAF_TRUTH_NAMES, LeafRecording, render_cube
-
     from gridflow.recording import check_recording
+    from gridflow.scenes import LEAF_TRUTH_NAMES, LeafRecording, render_cube
 
     out = _new_store(output)
     scene = scene if scene is not None else LeafRecording()

@@ -29,8 +29,6 @@ import fnmatch
 import hashlib
 import json
 import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -75,10 +73,17 @@ def _interior(shape, sigma: float, window: int) -> np.ndarray:
 
 # --- the suites' items: (id, parameters, GridVolume, truth with its region) -------------
 
+def _bare(v):
+    """``v`` (anything with a volume and a camera geometry) as the interchange volume: no
+    truth, no metadata."""
+    from gridflow.volume import GridVolume
+
+    return GridVolume(v.volume, v.focal_length, v.camera_spacing, v.principal_point, {}, {})
+
+
 def _sweep_suite(suite, options):
     from .spec import SweepSpec
     from .sweep import point_data, scoring_region
-    from gridflow.volume import GridVolume
 
     spec = SweepSpec.from_toml(suite)
 
@@ -86,80 +91,55 @@ def _sweep_suite(suite, options):
         params, sv, truth = point_data(spec, point)
         truth = {k: np.asarray(v, float) for k, v in truth.items()}
         truth["region"] = scoring_region(spec, sv.volume.shape)
-        return ({"point": point.__dict__, "params": params.as_dict()},
-                GridVolume(sv.volume, sv.focal_length, sv.camera_spacing,
-                           sv.principal_point, {}, {}), truth)
+        return {"point": point.__dict__, "params": params.as_dict()}, _bare(sv), truth
 
     return (spec.name, {"spec": spec.as_dict()},
             [(_item_id(p), lambda p=p: make(p)) for p in spec.points()])
 
 
-def _rendered(what, scene, cache, progress):
-    """A POV-Ray scene rendered into ``cache`` (or found there), loaded; refused where its
-    reference frame is not the middle one (a method estimates the middle frame)."""
+def _rendered_suite(name, default_scene, options, truth_of):
+    """A POV-Ray experiment (``cube``, ``leaf``) as a suite of one item: its scene
+    (``options["scene"]``, default ``default_scene``) rendered into the cache (or found
+    there), its truth ``truth_of(data, scene, window)`` and the pixels it scores."""
     from gridflow.loader import load_folder
-    from gridflow.scenes.render import render_cube
+    from gridflow.scenes.render import RENDER_CACHE, render_cube
 
-    data = load_folder(render_cube(scene, cache, progress=progress))
-    T = data.volume.shape[0]
-    if data.meta["ref_frame"] != (T - 1) // 2:
-        raise UsageError(f"the {what}'s reference frame is {data.meta['ref_frame']}; a "
-                         f"method estimates the middle frame {(T - 1) // 2}")
-    return data
-
-
-def _scene_options(options, default_scene):
     from .cube_experiment import CUBE_SIGMA, CUBE_WINDOW
 
     scene = options.get("scene") or default_scene
     sigma = float(options.get("sigma", CUBE_SIGMA))
     window = int(options.get("window", CUBE_WINDOW))
-    return scene, sigma, window
+
+    def make():
+        data = load_folder(render_cube(scene, options.get("cache") or RENDER_CACHE,
+                                       progress=options.get("progress", True)))
+        T = data.volume.shape[0]
+        if data.meta["ref_frame"] != (T - 1) // 2:
+            raise UsageError(f"the {name}'s reference frame is {data.meta['ref_frame']}; a "
+                             f"method estimates the middle frame {(T - 1) // 2}")
+        truth = {k: np.asarray(v, float) for k, v in truth_of(data, scene, window).items()}
+        truth["region"] = _interior(data.volume.shape, sigma, window)
+        return {"scene": scene.as_dict()}, _bare(data), truth
+
+    return name, {"sigma": sigma, "window": window, "scene": scene.as_dict()}, [(name, make)]
 
 
 def _cube_suite(suite, options):
     from gridflow.scenes import CubeScene
-    from gridflow.scenes.render import RENDER_CACHE
-    from gridflow.volume import GridVolume
 
-    scene, sigma, window = _scene_options(options, CubeScene())
-
-    def make():
-        data = _rendered("cube", scene, options.get("cache") or RENDER_CACHE,
-                         options.get("progress", True))
-        truth = {k: np.asarray(v, float) for k, v in data.truth.items()}
-        truth["region"] = _interior(data.volume.shape, sigma, window)
-        return ({"scene": scene.as_dict()},
-                GridVolume(data.volume, data.focal_length, data.camera_spacing,
-                           data.principal_point, {}, {}), truth)
-
-    return "cube", {"sigma": sigma, "window": window, "scene": scene.as_dict()}, [("cube", make)]
+    return _rendered_suite("cube", CubeScene(), options, lambda data, scene, w: data.truth)
 
 
 def _leaf_suite(suite, options):
     from gridflow.scenes import LeafScene, leaf_truth
-    from gridflow.scenes.render import RENDER_CACHE
-    from gridflow.volume import GridVolume
 
-    scene, sigma, window = _scene_options(options, LeafScene())
-
-    def make():
-        data = _rendered("leaf", scene, options.get("cache") or RENDER_CACHE,
-                         options.get("progress", True))
-        # the experiment's truth: its interior is the leaf pixels whose window lies on it
-        truth = {k: np.asarray(v, float) for k, v in
-                 leaf_truth(scene, margin=window // 2 + 2).items()}
-        truth["region"] = _interior(data.volume.shape, sigma, window)
-        return ({"scene": scene.as_dict()},
-                GridVolume(data.volume, data.focal_length, data.camera_spacing,
-                           data.principal_point, {}, {}), truth)
-
-    return "leaf", {"sigma": sigma, "window": window, "scene": scene.as_dict()}, [("leaf", make)]
+    # the experiment's truth: its interior is the leaf pixels whose window lies on it
+    return _rendered_suite("leaf", LeafScene(), options,
+                           lambda data, scene, w: leaf_truth(scene, margin=w // 2 + 2))
 
 
 def _growth_suite(suite, options):
     from gridflow.estimator import DEFAULTS
-    from gridflow.volume import GridVolume
 
     from .growth_maps import LEAVES, make_leaf
 
@@ -172,9 +152,7 @@ def _growth_suite(suite, options):
         truth = {k: np.asarray(v, float) for k, v in sv.truth.items()}
         # the growth study scores every method over the default estimate's interior
         truth["region"] = _interior(sv.volume.shape, DEFAULTS["sigma"], DEFAULTS["window"])
-        return ({"leaf": leaf, "seed": seed, "noise": noise},
-                GridVolume(sv.volume, sv.focal_length, sv.camera_spacing,
-                           sv.principal_point, {}, {}), truth)
+        return {"leaf": leaf, "seed": seed, "noise": noise}, _bare(sv), truth
 
     return ("growth_maps", {"noise": noise, "seeds": list(seeds), "leaves": list(leaves)},
             [(f"{leaf}_seed={seed}", lambda a=leaf, b=seed: make(a, b))
@@ -218,7 +196,7 @@ def export_suite(suite, folder, *, progress: bool = True, only: str | None = Non
     from tqdm import tqdm
 
     from gridflow import __version__
-    from gridflow.io import atomic_write, save_volume
+    from gridflow.io import folder_beside, save_volume
 
     from .sweep import _code_fingerprint
 
@@ -241,14 +219,7 @@ def export_suite(suite, folder, *, progress: bool = True, only: str | None = Non
         raise UsageError(f"--only {only!r}: matches none of the ids of suite {name}'s "
                          f"{len(every)} items (e.g. {every[0][0]})")
     target = folder.resolve()
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
-    try:
-        # mkdtemp's folder is the owner's alone: the suite gets a new folder's permissions,
-        # so that a method run by another user (a container, a group) reads it
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o777 & ~umask)
+    with folder_beside(target) as tmp:
         (tmp / "volumes").mkdir()
         (tmp / "truth").mkdir()
         entries = []
@@ -257,8 +228,7 @@ def export_suite(suite, folder, *, progress: bool = True, only: str | None = Non
             params, vol, truth = item()
             vpath, tpath = tmp / "volumes" / f"{iid}.npz", tmp / "truth" / f"{iid}.npz"
             save_volume(vpath, vol, compress=True)
-            with atomic_write(tpath) as fh:
-                np.savez_compressed(fh, **truth)
+            np.savez_compressed(tpath, **truth)      # in the temporary folder: whole or gone
             entries.append({"id": iid, **params, "volume": f"volumes/{iid}.npz",
                             "truth": f"truth/{iid}.npz",
                             "sha256": {"volume": _sha256(vpath), "truth": _sha256(tpath)}})
@@ -271,9 +241,6 @@ def export_suite(suite, folder, *, progress: bool = True, only: str | None = Non
         if target.exists():
             target.rmdir()          # empty (checked above)
         os.replace(tmp, target)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return [f"wrote {len(entries)} volume(s) of suite {name} to {folder}/volumes, their "
             f"truth to {folder}/truth and {folder}/manifest.json; run a method on every "
             f"volume into ESTIMATES/ID.npz, then: gridflow score {folder} ESTIMATES"]

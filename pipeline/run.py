@@ -706,10 +706,9 @@ def _prepare_and_run(plan: Plan, sink, o: RunOptions, views, notes, client, outp
     the steps redone because their frames changed)``."""
     sink.prepare(plan)
     todo, changed, kept = sink.todo(plan)
-    damaged = getattr(sink, "damaged", [])
-    if damaged:
-        q, i = damaged[0]
-        steps = sorted({j for _, j in damaged})
+    if sink.damaged:
+        q, i = sink.damaged[0]
+        steps = sorted({j for _, j in sink.damaged})
         msg = (f"{output}: {len(steps)} step(s) marked done lack a chunk of their maps or "
                f"the interior (e.g. {q} of step {i}, frame {plan.frames[i]}); estimating "
                "them again")

@@ -83,6 +83,7 @@ class NpzSink:
 
     kind = "npz"
     max_steps = 1
+    damaged = ()             # (array, step) of done steps that lost a chunk: none here
 
     def __init__(self, output, models, inputs=()):
         from gridflow.io import check_output
@@ -160,6 +161,7 @@ class MapSeriesSink:
         self.inputs = list(inputs)
         self.stores = {}
         self.keys = {}
+        self.damaged = []    # (array, step) of done steps that lost a chunk (todo)
 
     def prepare(self, plan) -> None:
         """Make or reopen each model's store, keyed on the run."""
@@ -251,7 +253,7 @@ class MapSeriesSink:
         sink = cls.__new__(cls)
         sink.outputs = {m: Path(p) for m, p in spec["outputs"].items()}
         sink.output = next(iter(sink.outputs.values()))
-        sink.inputs, sink.keys = [], dict(spec["keys"])
+        sink.inputs, sink.keys, sink.damaged = [], dict(spec["keys"]), []
         sink.stores = {m: MapStore.reopen(p, sink.keys[m]) for m, p in sink.outputs.items()}
         return sink
 

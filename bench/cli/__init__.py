@@ -37,6 +37,8 @@ GROUPS = ("estimate", "recordings", "sweeps", "experiments")
 
 def build_parser() -> argparse.ArgumentParser:
     """The parser of every command (each group's :func:`register`)."""
+    import importlib
+
     from gridflow import __version__
 
     ap = argparse.ArgumentParser(
@@ -46,8 +48,6 @@ def build_parser() -> argparse.ArgumentParser:
                     "reproduces the paper's figures.")
     ap.add_argument("--version", action="version", version=f"gridflow {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
-    import importlib
-
     for group in GROUPS:
         importlib.import_module(f"{__name__}.{group}").register(sub)
     return ap

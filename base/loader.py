@@ -186,7 +186,10 @@ def read_image(path: Path) -> tuple[np.ndarray, str]:
         raise LoaderError(f"{path}: unreadable image ({exc})") from None
     kind = str(img.dtype)
     if img.ndim == 3 and img.shape[-1] in (3, 4):
-        img = img[..., :3] @ np.array([0.2126, 0.7152, 0.0722])   # linear luminance
+        # linear luminance, as elementwise products and sums: a matrix product's BLAS
+        # rounds by the machine's CPU (results must be the same to the byte everywhere)
+        rgb = np.asarray(img, np.float64)
+        img = rgb[..., 0] * 0.2126 + rgb[..., 1] * 0.7152 + rgb[..., 2] * 0.0722
     elif img.ndim != 2:
         raise LoaderError(f"{path}: expected a grey or RGB image, got shape {img.shape}")
     if kind == "uint8":

@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["scan_volume", "camera_sums", "spatial_filter", "weighted_product"]
+__all__ = ["scan_volume", "camera_sums", "spatial_filter", "weighted_product",
+           "complex_multiply"]
 
 
 @njit(parallel=True, cache=True)
@@ -147,6 +148,27 @@ def weighted_product(coef, a, b, shape, out=None):
     if out is None:
         out = np.empty(shape)
     _product_kernel(np.ascontiguousarray(coef, dtype=np.float64), a, b, out)
+    return out
+
+
+@njit(parallel=True, cache=True)
+def _cmul_kernel(a, k, along_rows, out):
+    # no fastmath: each part is two products and one sum, never fused into a
+    # multiply-add, so the bits are those of estimator.spectral._cmul on any CPU
+    for y in prange(a.shape[0]):
+        for x in range(a.shape[1]):
+            v = a[y, x]
+            w = k[y] if along_rows else k[x]
+            out[y, x] = complex(v.real * w.real - v.imag * w.imag,
+                                v.imag * w.real + v.real * w.imag)
+
+
+def complex_multiply(a, k, out):
+    """``out = a * k`` for a complex (rows, cols) ``a`` and a kernel ``k`` of shape
+    (rows, 1) or (1, cols), in parallel, rounded as :func:`estimator.spectral._cmul`
+    (the same bits on every CPU: no fused multiply-adds)."""
+    along_rows = k.shape[1] == 1 and k.shape[0] == a.shape[0]     # one factor per row
+    _cmul_kernel(a, np.ascontiguousarray(k.ravel()), along_rows, out)
     return out
 
 

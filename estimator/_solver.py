@@ -11,8 +11,8 @@ with the pixel as the inner loop, from tiles copied out of the packed planes (pa
 over chunks).  The reference path's checks are made by sufficient tests (see
 :func:`_lanes_p`); a pixel they do not settle goes to the exact scalar path
 (:func:`_pixel`: inverse subspace iteration with a Rayleigh-Ritz step, up to
-``MAX_ITER``, then LAPACK's ``eigh``).  Measured on 512x512 sinusoids: HF and full settle
-every pixel in the lanes, noise-free, with σ_n = 0.025 and under brightness change; where
+``MAX_ITER``, then a full Jacobi eigen-decomposition).  Measured on 512x512 sinusoids:
+HF and full settle every pixel in the lanes, noise-free, with σ_n = 0.025 and under brightness change; where
 a model has broken down (BCC under brightness change) every pixel takes the scalar path,
 and after a block that settles nothing the lanes are skipped for ``_SKIP_BLOCKS``.  The
 weights ``(J_qq + δI)^-1_rr`` come from the same Cholesky factor (rows ordered so that
@@ -36,7 +36,7 @@ from .nullspace import COMBINED_ROWS, M_TOL, RANK_TOL, RIDGE, NullSpace
 
 __all__ = ["null_space_packed", "MAX_ITER"]
 
-# Subspace iterations of the scalar path before it falls back to LAPACK.
+# Subspace iterations of the scalar path before it falls back to a full eigen-decomposition.
 MAX_ITER = 8
 # The shift of the inverse iteration: the reference path's ridge, so that the weights g
 # (from the same factor of J + δI) are those of estimator.nullspace.null_space.
@@ -60,15 +60,16 @@ A (n, n, nl) J; L, dl its Cholesky factor and reciprocal diagonal; Li (nq, nq, n
 L_qq^-1; X, Y, Pn (n, k, nl) the iterate, the solve and the renormalised iterate; Minv,
 G, H (k, k, nl); lw (10, nl) per-lane scalars; P, g, err the lanes' results; settled,
 warm (nl,) per-lane flags."""
-ScalarWork = namedtuple("ScalarWork", "A B L X Y AY H V th y b M MtM Vk wk Minv")
+ScalarWork = namedtuple("ScalarWork", "A B L X Y AY H V th y b M MtM Vk wk Minv E ew")
 ScalarWork.__doc__ = """Work arrays of the scalar path (one pixel).
 
 A, B, L (n, n) J, J + δI and its Cholesky factor; X, Y, AY (n, k + 1) the subspace; H,
 V (k + 1, k + 1) and th (k + 1,) its Rayleigh-Ritz problem; y, b (n,); M, MtM, Vk, Minv
-(k, k) and wk (k,) for the checks and P = X M^-1."""
+(k, k) and wk (k,) for the checks and P = X M^-1; E (n, n) and ew (n,) the fallback's
+eigen-decomposition."""
 SolverOutput = namedtuple("SolverOutput", "P g err valid nfall")
 SolverOutput.__doc__ = """Results, pixel last: P (n, k, N), g (n, N), err (N,), valid
-(N,) and nfall (_CHUNKS, 2) the counts of pixels sent to the scalar path and to LAPACK."""
+(N,) and nfall (_CHUNKS, 2) the counts of pixels sent to the scalar path and to the full decomposition."""
 
 
 @njit(cache=True)
@@ -143,7 +144,7 @@ def _jacobi(H, V, w):
                     V[k, q] = s * vkp + c * vkq
     for i in range(m):
         w[i] = H[i, i]
-    # sort ascending (insertion sort, m <= 4)
+    # sort ascending (insertion sort: m <= 4, or n for the scalar path's fallback)
     for i in range(1, m):
         j = i
         while j > 0 and w[j - 1] > w[j]:
@@ -247,7 +248,7 @@ def _pixel(ws, tr, have, spec, i, out):
 
     ``ws.A`` holds J (rows in ``spec.perm`` order), ``ws.X`` a start (used if ``have``).
     Writes P, g, err, valid of pixel ``i`` into ``out``; returns (solved, fell back to
-    LAPACK)."""
+    the full decomposition)."""
     A, X, L, B, th = ws.A, ws.X, ws.L, ws.B, ws.th
     k, max_iter = spec.k, spec.max_iter
     err, valid = out.err, out.valid
@@ -274,15 +275,21 @@ def _pixel(ws, tr, have, spec, i, out):
     good = ok and _accept(ws, tr, spec)
     fell = False
     if not good:
-        # LAPACK after non-convergence, and also when the iteration's subspace
-        # fails the checks (it could miss a direction its start lacked)
+        # the full decomposition after non-convergence, and also when the iteration's
+        # subspace fails the checks (it could miss a direction its start lacked)
         fell = True
-        w, V = np.linalg.eigh(A)
+        # the full eigen-decomposition by Jacobi rotations, not LAPACK's eigh: LAPACK's
+        # sums depend on the machine's CPU kernels, so its last bits (and a pixel's
+        # validity near a threshold) would differ from one machine to another
+        for a in range(n):
+            for bb in range(n):
+                B[a, bb] = A[a, bb]
+        _jacobi(B, ws.E, ws.ew)
         for r in range(n):
             for j in range(m):
-                X[r, j] = V[r, j]
+                X[r, j] = ws.E[r, j]
         for j in range(m):
-            th[j] = w[j]
+            th[j] = ws.ew[j]
         good = _accept(ws, tr, spec)
     err[i] = th[k - 1]
     if not good:
@@ -679,7 +686,7 @@ def _solve_all(Jp, spec, out):
 
     Pixels go through in blocks of _LANES (:func:`_lanes_p`, each lane warm-started from
     the pixel _LANES to its left); a pixel the lanes do not settle goes through the
-    scalar path :func:`_pixel` (inverse subspace iteration, then LAPACK)."""
+    scalar path :func:`_pixel` (inverse subspace iteration, then Jacobi)."""
     N = Jp.shape[1]
     n = spec.idx.shape[0]
     k = spec.k
@@ -702,7 +709,7 @@ def _solve_all(Jp, spec, out):
                             H=np.empty((m, m)), V=np.empty((m, m)), th=np.empty(m),
                             y=np.empty(n), b=np.empty(n), M=np.empty((k, k)),
                             MtM=np.empty((k, k)), Vk=np.empty((k, k)), wk=np.empty(k),
-                            Minv=np.empty((k, k)))
+                            Minv=np.empty((k, k)), E=np.empty((n, n)), ew=np.empty(n))
         tile = np.empty((Jp.shape[0], _TILE))
         # state[0]: scalar.X holds a solved subspace; state[1]: lane blocks still to skip
         state = np.zeros(2, dtype=np.int64)
@@ -795,7 +802,7 @@ def null_space_packed(planes: np.ndarray, index: np.ndarray, model: Model) -> Nu
         As :func:`estimator.nullspace.null_space` (``g`` is filled for the combined rows
         only; ``P`` (N, n, k) and ``g`` (N, n) are transposed views of pixel-last
         arrays), with ``fallbacks``: the number of pixels the lane solver handed to the
-        scalar path and, of those, how many fell back to LAPACK ``eigh``.
+        scalar path and, of those, how many fell back to the full (Jacobi) decomposition.
     """
     N = planes.shape[1]
     n = model.n

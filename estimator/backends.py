@@ -213,7 +213,8 @@ class NumbaBackend(Backend):
         planes, idx = structure_tensor_fft(signals, plan.tvals, plan.rows, plan.kernels,
                                            plan.radius + plan.spatial_radius,
                                            cols=plan.cols, fft="scipy", workers=self.threads,
-                                           product=self._kernels.weighted_product)
+                                           product=self._kernels.weighted_product,
+                                           cmul=self._kernels.complex_multiply)
         return PackedTensor(planes.reshape(planes.shape[0], -1), idx, plan.rows)
 
     def null_space(self, J: PackedTensor, model: Model) -> NullSpace:

@@ -27,6 +27,7 @@ same ``w^3`` condition; it serves axes with only 3 samples (3 cameras, short seq
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -96,21 +97,44 @@ def _from_half(name: str, p0: float, p_side: list[float], d_side: list[float]) -
 
 def _design_matched5() -> FilterPair:
     # Unknowns x = (p0, p1, p2, d1, d2); the residual w p(w) - d(w) is linear in x.
-    w = np.linspace(0.0, np.pi, 4001)
-    A = np.stack([w, 2 * w * np.cos(w), 2 * w * np.cos(2 * w),
-                  -2 * np.sin(w), -2 * np.sin(2 * w)], axis=1)
-    H = A.T @ A / w.size
-    C = np.array([
+    # Computed in Python floats, each sum exactly rounded (math.fsum) and the sines from
+    # the C library, not with numpy's SIMD sines and BLAS/LAPACK: those round by the
+    # machine's CPU, and a last-bit difference in the taps would change every estimate
+    # on another machine (results that must be reproducible to the byte).
+    n = 4001
+    w = [math.pi * i / (n - 1) for i in range(n)]
+    A = [(v, 2 * v * math.cos(v), 2 * v * math.cos(2 * v), -2 * math.sin(v),
+          -2 * math.sin(2 * v)) for v in w]
+    H = [[math.fsum(a[i] * a[j] for a in A) / n for j in range(5)] for i in range(5)]
+    C = [
         [1, 2, 2, 0, 0],                      # sum p = 1
         [0, 0, 0, 2, 4],                      # first moment of d = 1
         [0, 1, 4, -2 / 6, -16 / 6],           # w^3 coefficients of w p(w) and d(w) agree
         [0, 1 / 12, 16 / 12, -2 / 120, -64 / 120],  # w^5 coefficients agree
-    ])
-    b = np.array([1.0, 1.0, 0.0, 0.0])
-    kkt = np.block([[2 * H, C.T], [C, np.zeros((4, 4))]])
-    x = np.linalg.solve(kkt, np.concatenate([np.zeros(5), b]))[:5]
-    p0, p1, p2, d1, d2 = x
+    ]
+    b = [1.0, 1.0, 0.0, 0.0]
+    kkt = [[2 * H[i][j] for j in range(5)] + [C[k][i] for k in range(4)] for i in range(5)]
+    kkt += [list(map(float, C[k])) + [0.0] * 4 for k in range(4)]
+    p0, p1, p2, d1, d2 = _solve(kkt, [0.0] * 5 + b)[:5]
     return _from_half("matched5", p0, [p1, p2], [d1, d2])
+
+
+def _solve(M: list[list[float]], y: list[float]) -> list[float]:
+    """``M x = y`` by Gaussian elimination with partial pivoting, in Python floats (a
+    small system, the same to the last bit on every machine)."""
+    n = len(y)
+    a = [list(map(float, row)) + [float(v)] for row, v in zip(M, y)]
+    for c in range(n):
+        piv = max(range(c, n), key=lambda r: abs(a[r][c]))
+        a[c], a[piv] = a[piv], a[c]
+        for r in range(c + 1, n):
+            f = a[r][c] / a[c][c]
+            for k in range(c, n + 1):
+                a[r][k] -= f * a[c][k]
+    x = [0.0] * n
+    for r in range(n - 1, -1, -1):
+        x[r] = (a[r][n] - math.fsum(a[r][k] * x[k] for k in range(r + 1, n))) / a[r][r]
+    return x
 
 
 def _fs5() -> FilterPair:

@@ -180,13 +180,30 @@ def temporal_taps(sums: np.ndarray, plan: SignalPlan) -> dict[str, np.ndarray]:
         ``"t"`` without a time axis).
     """
     cams = dict(zip(plan.combos, sums))
-    # one BLAS product over the band per signal instead of F weighted sums of images
-    out = {"p": np.tensordot(plan.taps["p"], cams["pp"], axes=1),
-           "sx": np.tensordot(plan.taps["p"], cams["dp"], axes=1)}
+    out = {"p": _taps_sum(plan.taps["p"], cams["pp"]),
+           "sx": _taps_sum(plan.taps["p"], cams["dp"])}
     if "d" in plan.taps:
-        out["t"] = np.tensordot(plan.taps["d"], cams["pp"], axes=1)
+        out["t"] = _taps_sum(plan.taps["d"], cams["pp"])
     if "pd" in cams:
-        out["sy"] = np.tensordot(plan.taps["p"], cams["pd"], axes=1)
+        out["sy"] = _taps_sum(plan.taps["p"], cams["pd"])
+    return out
+
+
+def _taps_sum(taps: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """``out[f] = sum_j taps[f, j] frames[j]``, the terms added one at a time in the
+    order of ``j``.
+
+    Not ``np.tensordot``: BLAS orders (and fuses) the sums by the machine's CPU and its
+    thread count, so the signals, and every estimate after them, would differ in the
+    last bits from one machine to another (a result that cannot be reproduced to the
+    byte).  Elementwise products and sums are IEEE-exact whatever the SIMD width.
+    """
+    out = np.zeros((taps.shape[0],) + frames.shape[1:])
+    tmp = np.empty(frames.shape[1:])
+    for f in range(taps.shape[0]):
+        for j in np.flatnonzero(taps[f]):
+            np.multiply(frames[j], taps[f, j], out=tmp)
+            out[f] += tmp
     return out
 
 

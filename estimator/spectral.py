@@ -21,7 +21,8 @@ __all__ = ["structure_tensor_fft"]
 
 
 def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), *,
-                         fft: str = "scipy", workers: int | None = None, product=None):
+                         fft: str = "scipy", workers: int | None = None, product=None,
+                         cmul=None):
     """Packed structure tensor of a band via FFT.
 
     Parameters and meaning as :func:`estimator.tensor.structure_tensor`, plus
@@ -39,6 +40,10 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
         ``out`` (an array of that shape, reused for every product).  Default numpy's
         ``einsum``, unpadded, which ``rfft2`` pads; the numba backend passes its
         parallel kernel (:func:`estimator._kernels.weighted_product`).
+    cmul : callable, optional
+        ``cmul(a, k, out)``: the spectrum ``a`` times a kernel ``k`` broadcast along one
+        axis, into ``out``, rounded as :func:`_cmul` (its default); the numba backend
+        passes its parallel kernel (:func:`estimator._kernels.complex_multiply`).
 
     Returns
     -------
@@ -50,6 +55,7 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
         Entry (a, b) of J is plane ``idx[a, b]``.
     """
     n = len(rows)
+    cmul = cmul or _cmul
     F, h, W = next(iter(signals.values())).shape
     R = kernels.shape[1] // 2
     wt = np.full(F, 1.0 / F)
@@ -113,12 +119,31 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
             if py not in ypass:
                 buf = ybufs.setdefault(py, np.empty_like(FP))
                 # scipy.fft transforms complex input in place with overwrite_x
-                ypass[py] = sfft.ifft(np.multiply(FP, KY[py][:, None], out=buf), axis=0,
+                ypass[py] = sfft.ifft(cmul(FP, KY[py][:, None], buf), axis=0,
                                       **kw, **over)
-            np.multiply(ypass[py][keep_rows], KX[px][None, :], out=xbuf)
+            cmul(ypass[py][keep_rows], KX[px][None, :], xbuf)
             full = sfft.irfft(xbuf, n=shape[1], axis=1, **kw, **over)
             Jp[plane[((pair, tpow), px, py)]] = full[:, keep_cols]
     return Jp, idx
+
+
+def _cmul(a: np.ndarray, k: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out = a * k`` for complex arrays (``k`` broadcast against ``a``), from real
+    products and sums.
+
+    numpy's complex multiply is SIMD code chosen by the machine's CPU, some of it with
+    fused multiply-adds, so its last bits (and every estimate after it) would differ from
+    one machine to another; four real products and two real sums round the same
+    everywhere.
+    """
+    ar, ai = a.real, a.imag
+    kr, ki = k.real, k.imag
+    tmp = np.empty(a.shape)
+    np.multiply(ar, kr, out=out.real)
+    out.real -= np.multiply(ai, ki, out=tmp)
+    np.multiply(ai, kr, out=out.imag)
+    out.imag += np.multiply(ar, ki, out=tmp)
+    return out
 
 
 def _next_smooth(n: int, real: bool = True) -> int:

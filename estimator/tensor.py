@@ -26,6 +26,7 @@ The solvers read J from a :class:`DenseTensor` (full matrices per pixel) or a
 
 from __future__ import annotations
 
+import math
 from itertools import combinations_with_replacement
 
 import numpy as np
@@ -57,8 +58,10 @@ def gaussian_moment_kernels(sigma: float, window: int) -> np.ndarray:
     """
     R = window // 2
     delta = np.arange(-R, R + 1, dtype=float)
-    w = np.exp(-0.5 * (delta / sigma) ** 2)
-    w /= w.sum()
+    # the C library's exp and an exactly rounded sum: numpy's SIMD exp rounds by the
+    # machine's CPU, which would change every estimate in the last bits elsewhere
+    w = np.array([math.exp(-0.5 * (d / sigma) ** 2) for d in delta.tolist()])
+    w /= math.fsum(w.tolist())
     return np.stack([w, w * delta, w * delta ** 2])
 
 

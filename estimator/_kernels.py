@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit, prange
 
 __all__ = ["scan_volume", "camera_sums", "spatial_filter", "weighted_product",
-           "complex_multiply"]
+           "complex_multiply", "complex_multiply_add"]
 
 
 @njit(parallel=True, cache=True)
@@ -169,6 +169,26 @@ def complex_multiply(a, k, out):
     (the same bits on every CPU: no fused multiply-adds)."""
     along_rows = k.shape[1] == 1 and k.shape[0] == a.shape[0]     # one factor per row
     _cmul_kernel(a, np.ascontiguousarray(k.ravel()), along_rows, out)
+    return out
+
+
+@njit(parallel=True, cache=True)
+def _cmadd_kernel(a, k, along_rows, m, out):
+    # as _cmul_kernel, then times m (1 or 2: exact) and added: estimator.spectral._cmadd
+    for y in prange(a.shape[0]):
+        for x in range(a.shape[1]):
+            v = a[y, x]
+            w = k[y] if along_rows else k[x]
+            re = (v.real * w.real - v.imag * w.imag) * m
+            im = (v.imag * w.real + v.real * w.imag) * m
+            out[y, x] = complex(out[y, x].real + re, out[y, x].imag + im)
+
+
+def complex_multiply_add(a, k, m, out):
+    """``out += m (a * k)``, shapes as :func:`complex_multiply`, rounded as
+    :func:`estimator.spectral._cmadd`."""
+    along_rows = k.shape[1] == 1 and k.shape[0] == a.shape[0]
+    _cmadd_kernel(a, np.ascontiguousarray(k.ravel()), along_rows, float(m), out)
     return out
 
 

@@ -78,6 +78,11 @@ class TensorPlan:
         Rows at a band's edges whose signals are not valid (the 5-tap filters' reach).
     cols : slice
         The image columns kept (the interior).
+    combine : tuple, optional
+        ``(rows, terms)`` of :func:`estimator.tensor.zoom_terms`: the tensor wanted is
+        over these rows, each the sum of the ``terms`` of ``rows`` above (the zoom-blur
+        correction).  The FFT backends sum in the spectral domain; the others return
+        J over ``rows`` above, which the driver then combines.
     """
 
     tvals: np.ndarray
@@ -86,6 +91,7 @@ class TensorPlan:
     radius: int
     spatial_radius: int
     cols: slice
+    combine: tuple | None = None
 
 
 class Backend:
@@ -170,8 +176,9 @@ class FFTBackend(Backend):
 
         planes, idx = structure_tensor_fft(signals, plan.tvals, plan.rows, plan.kernels,
                                            plan.radius + plan.spatial_radius,
-                                           cols=plan.cols, fft="numpy")
-        return PackedTensor(planes.reshape(planes.shape[0], -1), idx, plan.rows)
+                                           cols=plan.cols, fft="numpy", combine=plan.combine)
+        return PackedTensor(planes.reshape(planes.shape[0], -1), idx,
+                            plan.combine[0] if plan.combine else plan.rows)
 
 
 class NumbaBackend(Backend):
@@ -214,8 +221,11 @@ class NumbaBackend(Backend):
                                            plan.radius + plan.spatial_radius,
                                            cols=plan.cols, fft="scipy", workers=self.threads,
                                            product=self._kernels.weighted_product,
-                                           cmul=self._kernels.complex_multiply)
-        return PackedTensor(planes.reshape(planes.shape[0], -1), idx, plan.rows)
+                                           cmul=self._kernels.complex_multiply,
+                                           cmadd=self._kernels.complex_multiply_add,
+                                           combine=plan.combine)
+        return PackedTensor(planes.reshape(planes.shape[0], -1), idx,
+                            plan.combine[0] if plan.combine else plan.rows)
 
     def null_space(self, J: PackedTensor, model: Model) -> NullSpace:
         return self._solver.null_space_packed(J.planes, J.sub_index(model.rows), model)

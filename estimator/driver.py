@@ -27,7 +27,7 @@ from .pooling import (bell, bell_radius, bell_square_sum, fit_variance, local_li
 from .result import Estimate
 from .settings import EstimatorSettings, InputError
 from .signals import SignalPlan, signal_plan
-from .tensor import gaussian_moment_kernels, scaled, zoom_corrected
+from .tensor import gaussian_moment_kernels, scaled, zoom_corrected, zoom_terms
 
 __all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
            "window_halo", "band_halo", "temporal_reach"]
@@ -361,8 +361,9 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     mdl: dict[str, Model] = {m: get_model(m, plan.grid_dims, plan.static, s.motion)
                              for m in models}
     rows = covering_rows(mdl.values())
-    # the zoom-blur correction: J over the rows and their correction rows (J_ext), then
-    # each corrected row as the sum of the two (tensor.zoom_corrected)
+    # the zoom-blur correction: each corrected row is the sum of the row and its
+    # correction row; the FFT backends sum their entries' spectra (tplan.combine), the
+    # others return J over both (J_ext), summed after (tensor.zoom_corrected)
     ext = zoom_rows(rows) if s.zoom_correction else rows
     extra = tuple(dict.fromkeys(ZOOM_ROW_SIGNALS[r][0] for r in ext[len(rows):]))
     vol = plan.volume
@@ -376,7 +377,8 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     tplan = TensorPlan(tvals=plan.frames - plan.k_ref, rows=ext,
                        kernels=gaussian_moment_kernels(s.sigma, s.window),
                        radius=s.window // 2, spatial_radius=plan.spatial.radius,
-                       cols=slice(halo, W - halo))
+                       cols=slice(halo, W - halo),
+                       combine=zoom_terms(ext, rows) if ext != rows else None)
 
     interior = np.zeros((H, W), dtype=bool)
     interior[halo:H - halo, halo:W - halo] = True
@@ -419,7 +421,8 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
             signals = {k: v * m for k, v in signals.items()}
         J = backend.tensor(signals, tplan)                # the band's interior pixels
         del signals
-        if ext != rows:
+        if J.rows != rows:
+            # a backend that does not sum the corrections itself (tplan.combine)
             J = zoom_corrected(J, rows)
         n_px = np.broadcast_to(n_eff, (r1 - r0) * cols.size)
         if mask is not None:

@@ -37,6 +37,7 @@ from .models import ROWS, ZOOM_ROW_SIGNALS, ZOOM_ROWS
 _ROW_SIGNALS = {**ROWS, **ZOOM_ROW_SIGNALS}
 
 __all__ = ["gaussian_moment_kernels", "entry_keys", "entry_groups", "structure_tensor",
+           "zoom_terms",
            "structure_tensor_reference", "DenseTensor", "PackedTensor", "zoom_corrected",
            "scaled"]
 
@@ -199,6 +200,15 @@ class PackedTensor:
         return np.ascontiguousarray(np.moveaxis(self.planes[self.sub_index(rows)], -1, 0))
 
 
+def zoom_terms(ext: tuple[str, ...], rows: tuple[str, ...]):
+    """``(rows, terms)``: each row of ``rows`` as the sum of rows of ``ext``
+    (:func:`estimator.models.zoom_rows` ``(rows)``): itself and, where it has one, its
+    correction row (``ZOOM_ROWS``); ``terms[a]`` their indices in ``ext``."""
+    terms = [[ext.index(r)] + ([ext.index(ZOOM_ROWS[r])] if r in ZOOM_ROWS else [])
+             for r in rows]
+    return tuple(rows), terms
+
+
 def zoom_corrected(J, rows: tuple[str, ...]):
     """J of ``rows`` with the zoom-blur correction, from J_ext over
     :func:`estimator.models.zoom_rows` ``(rows)``.
@@ -220,14 +230,12 @@ def zoom_corrected(J, rows: tuple[str, ...]):
     """
     ext = J.rows
     n = len(rows)
-    T = np.zeros((n, len(ext)))
-    for a, r in enumerate(rows):
-        T[a, ext.index(r)] = 1.0
-        if r in ZOOM_ROWS:
-            T[a, ext.index(ZOOM_ROWS[r])] = 1.0
+    terms = zoom_terms(ext, rows)[1]
     if isinstance(J, DenseTensor):
+        T = np.zeros((n, len(ext)))
+        for a, t in enumerate(terms):
+            T[a, t] = 1.0
         return DenseTensor(np.matmul(np.matmul(T, J.J), T.T), rows)
-    terms = [np.flatnonzero(T[a]) for a in range(n)]
     index = np.empty((n, n), dtype=np.int64)
     planes = np.empty((n * (n + 1) // 2, J.planes.shape[1]))
     e = 0

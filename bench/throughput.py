@@ -27,6 +27,14 @@ Sections (each prints its table):
     What the zoom-blur correction costs: the fast path with and without it
     (``zoom_correction``), interleaved, best wall and its CPU time of ``--repeat``
     rounds, on the same volume, one model at a time and the three together.
+``stages``
+    Where the default fast path's time goes, per model (the full model, and with the
+    affine motion model), zoom-blur correction on: the wall time of each of its stages
+    (the signals: camera/time sums and x/y filtering; the tensor: the products and their
+    FFT smoothing; the null space: the per-pixel solver; the affine solve; the rest:
+    disentangling, pooling, checks), measured around the backend's calls, in
+    ``--repeat`` runs: each stage's share of the run's wall time and the spread over the
+    runs.
 ``scaling``
     The fast path alone at each of ``--sizes``, each in a fresh process: time, pixels per
     second over the *interior* (pixels with a full window: the border is 46 % of a 256^2
@@ -56,7 +64,7 @@ from gridflow.estimator import MODELS, estimate
 from gridflow.estimator.models import AFFINE, TRANSLATION
 from gridflow.generators import make_sinusoid
 
-SECTIONS = ("inprocess", "cli", "scaling", "zoom")
+SECTIONS = ("inprocess", "cli", "scaling", "zoom", "stages")
 
 
 def _volume(size: int, dtype=np.float64):
@@ -138,6 +146,56 @@ def zoom(size: int, models, repeat: int) -> list[dict]:
         off, on = (min(times[z], key=lambda r: r[0]) for z in (False, True))
         rows.append(dict(models=",".join(group), off_wall=off[0], off_cpu=off[1],
                          on_wall=on[0], on_cpu=on[1], ratio=on[0] / off[0]))
+    return rows
+
+
+def stages(size: int, repeat: int) -> list[dict]:
+    """Seconds in each stage of the default fast path (numba backend) per run, by timing
+    the backend's ``signals``, ``tensor``, ``null_space`` and ``solve_affine`` calls."""
+    from gridflow.estimator import backends
+
+    sv = _volume(size)
+    estimate(sv.volume[..., :160, :160], sv.focal_length, sv.camera_spacing, model="full")
+    spent = {}
+    cls = backends.NumbaBackend
+    saved = {name: cls.__dict__.get(name) for name in ("signals", "tensor", "null_space")}
+
+    def timed(name, fn):
+        def wrapper(*args, **kw):
+            t0 = time.perf_counter()
+            try:
+                return fn(*args, **kw)
+            finally:
+                spent[name] = spent.get(name, 0.0) + time.perf_counter() - t0
+        return wrapper
+
+    rows = []
+    init = cls.__init__
+
+    def patched_init(self):
+        init(self)
+        self.solve_affine = timed("affine solve", self.solve_affine)
+    try:
+        for name in saved:
+            setattr(cls, name, timed(name, getattr(cls, name)))
+        cls.__init__ = patched_init
+        for motion in (TRANSLATION.name, AFFINE.name):
+            for run in range(repeat):
+                spent.clear()
+                t0 = time.perf_counter()
+                estimate(sv.volume, sv.focal_length, sv.camera_spacing, model="full",
+                         motion=motion)
+                wall = time.perf_counter() - t0
+                parts = {"signals": spent.get("signals", 0.0),
+                         "tensor": spent.get("tensor", 0.0),
+                         "null space": spent.get("null_space", 0.0),
+                         "affine solve": spent.get("affine solve", 0.0)}
+                parts["rest"] = wall - sum(parts.values())
+                rows.append(dict(motion=motion, run=run, wall=wall, **parts))
+    finally:
+        cls.__init__ = init
+        for name, fn in saved.items():
+            setattr(cls, name, fn)
     return rows
 
 
@@ -260,6 +318,24 @@ def main(argv=None) -> int:
         for r in zoom(a.size, a.models, a.repeat):
             print(f"| {r['models']} | {r['off_wall']:.3f} | {r['off_cpu']:.3f} | "
                   f"{r['on_wall']:.3f} | {r['on_cpu']:.3f} | **{r['ratio']:.2f}** |", flush=True)
+    if "stages" in a.sections:
+        print(f"\nwhere the time goes, fast path, full model, zoom-blur correction on, "
+              f"{a.size}x{a.size} ({a.repeat} runs; each stage: median seconds, its share "
+              "of the median run, and the range over the runs)")
+        print("| motion | run wall s | signals | tensor | null space | affine solve | rest |")
+        print("|---|---|---|---|---|---|---|")
+        rows = stages(a.size, a.repeat)
+        for motion in (TRANSLATION.name, AFFINE.name):
+            mine = [r for r in rows if r["motion"] == motion]
+            wall = float(np.median([r["wall"] for r in mine]))
+            cells = []
+            for part in ("signals", "tensor", "null space", "affine solve", "rest"):
+                v = [r[part] for r in mine]
+                cells.append(f"{np.median(v):.3f} ({np.median(v) / wall:.0%}; "
+                             f"{min(v):.3f}-{max(v):.3f})")
+            w = [r["wall"] for r in mine]
+            print(f"| {motion} | {wall:.3f} ({min(w):.3f}-{max(w):.3f}) | "
+                  + " | ".join(cells) + " |", flush=True)
     if "scaling" in a.sections and a.sizes:
         print("\nscaling, fast path, full model, float32 volume, one fresh process per size")
         print("| size | seconds | interior px | interior kpx/s | image kpx/s | volume MB | "

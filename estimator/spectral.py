@@ -156,9 +156,15 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
                 ypass[py] = sfft.ifft(cmul(FP, KY[py][:, None], buf), axis=0,
                                       **kw, **over)
             for e, mult, summed in goes.get(((pair, tpow), px, py), ()):
-                if summed:
-                    if acc[e] is None:
-                        acc[e] = np.zeros_like(xbuf)
+                if summed and acc[e] is None:
+                    # the first term written, not added to zeros: allocating zeroed
+                    # arrays cost 0.08 of 1.2 s at 512^2 (the same bits: 0 + x = x, up
+                    # to the sign of an exact zero)
+                    acc[e] = cmul(ypass[py][keep_rows], KX[px][None, :],
+                                  np.empty_like(xbuf))
+                    if mult != 1:
+                        acc[e] *= float(mult)
+                elif summed:
                     cmadd(ypass[py][keep_rows], KX[px][None, :], float(mult), acc[e])
                 else:
                     cmul(ypass[py][keep_rows], KX[px][None, :], xbuf)

@@ -27,6 +27,7 @@ BadPix) for depth, Eq. 22 of the image flow for motion.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from gridflow.estimator import MODELS
+from gridflow.estimator.portable import gaussian_taps, log10
 from gridflow.metrics import evaluate, hci_metrics
 
 from .cube_experiment import CUBE_SIGMA, CUBE_WINDOW
@@ -43,21 +45,19 @@ __all__ = ["epi_structure_tensor", "DEPTH_METHODS", "run_depth", "compare_motion
 
 
 def _gauss(sigma: float, rmax: int | None = None) -> np.ndarray:
+    # the taps from the C library's exp with exact sums (gaussian_taps): numpy's SIMD exp
+    # and sums would give other bits on another CPU, and the EPI peer is a committed result
     r = max(1, int(np.ceil(3 * sigma)))
     r = r if rmax is None else min(r, rmax)
-    x = np.arange(-r, r + 1, dtype=float)
-    w = np.exp(-0.5 * (x / sigma) ** 2)
-    return w / w.sum()
+    return gaussian_taps(sigma, r)
 
 
 def _gauss_deriv(sigma: float, rmax: int | None = None) -> np.ndarray:
     r = max(1, int(np.ceil(3 * sigma)))
     r = r if rmax is None else min(r, rmax)
     x = np.arange(-r, r + 1, dtype=float)
-    w = np.exp(-0.5 * (x / sigma) ** 2)
-    w /= w.sum()
-    d = -x / sigma ** 2 * w
-    return d / -(d * x).sum()           # unit response to a linear ramp (correlation)
+    d = -x / sigma ** 2 * gaussian_taps(sigma, r)
+    return d / -math.fsum((d * x).tolist())     # unit response to a linear ramp
 
 
 def epi_structure_tensor(views: np.ndarray, inner: float = 0.8, outer: float = 2.0):
@@ -104,7 +104,12 @@ def epi_structure_tensor(views: np.ndarray, inner: float = 0.8, outer: float = 2
         def integrate(a):
             a = correlate1d(correlate1d(a, go, axis=1, mode="nearest"), go, axis=2,
                             mode="nearest")
-            return np.tensordot(wv, a[sel], axes=(0, 0))
+            # the weighted sum over the views term by term (a BLAS product's sums
+            # round by the CPU)
+            out = np.zeros(a.shape[1:])
+            for w_, img in zip(wv, a[sel]):
+                out += w_ * img
+            return out
 
         jxx = integrate(Exs * Exs)
         jcc = integrate(Ec * Ec)
@@ -128,7 +133,7 @@ def _gridflow(views, grid: int = 5, sigma: float = 2.0, window: int = 9):
     sub = views[c0:c0 + grid, c0:c0 + grid][None]
     e = estimate(np.ascontiguousarray(sub), float(views.shape[-1]), (1.0, 1.0), model="bcc",
                  sigma=sigma, window=window)
-    return e["disparity"], -np.log10(np.maximum(e["model_error"], 1e-300))
+    return e["disparity"], -log10(np.maximum(e["model_error"], 1e-300))
 
 
 def _central(views, grid):

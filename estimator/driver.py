@@ -11,6 +11,7 @@ filters the signals, forms the structure tensor and solves each model's null spa
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -173,7 +174,7 @@ def _unit_scale(amax: float) -> float:
     underflow in J's products of order max|V|^2 after the rescale."""
     if amax == 0.0 or not np.isfinite(amax):
         return 1.0
-    exponent = int(min(1023, -np.round(np.log2(amax))))
+    exponent = int(min(1023, -round(math.log2(amax))))
     return float(np.ldexp(1.0, exponent))
 
 
@@ -283,13 +284,15 @@ def _effective_samples(w: np.ndarray, spatial: FilterPair, frames: int,
     ``sum_ij w_i w_j R(i - j)`` with ``R`` the prefilter's normalised autocorrelation, per
     axis (Gaussian weights ``w`` in x and y, ``frames`` uniform weights in time)."""
     def variance(weights, pair):
-        p = pair.prefilter
-        R = np.correlate(p, p, mode="full") / np.dot(p, p)
-        # full convolution, then the centre: ``mode="same"`` returns the longer of the
-        # two lengths, which is R's when the window is shorter than the autocorrelation
-        c = np.convolve(weights, R, mode="full")
-        k = (len(R) - 1) // 2
-        return float(weights @ c[k:k + len(weights)])
+        # in Python floats with exactly rounded sums: numpy's correlate, convolve and dot
+        # go through BLAS, whose sums round by the machine's CPU
+        p = [float(v) for v in pair.prefilter]
+        w = [float(v) for v in weights]
+        pp = math.fsum(v * v for v in p)
+        R = [math.fsum(p[i] * p[i + d] for i in range(len(p) - d)) / pp
+             for d in range(len(p))]
+        return math.fsum(w[i] * w[j] * R[abs(i - j)] for i in range(len(w))
+                         for j in range(len(w)) if abs(i - j) < len(p))
 
     vx = variance(w, spatial)
     vt = variance(np.full(frames, 1.0 / frames), time) if time is not None else 1.0

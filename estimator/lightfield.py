@@ -43,11 +43,10 @@ rendered cube).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .driver import estimate
+from .portable import gaussian_taps, log10
 from .result import Estimate
 from .settings import DEFAULTS, InputError
 
@@ -210,9 +209,7 @@ def shear(views: np.ndarray, s: int) -> np.ndarray:
 def _lowpass(views: np.ndarray, sigma: float) -> np.ndarray:
     """Each view blurred in x and y by a Gaussian of ``sigma`` px (edges repeated)."""
     r = max(1, int(np.ceil(3 * sigma)))
-    # the C library's exp and an exact sum, not numpy's SIMD exp (machine-dependent bits)
-    g = np.array([math.exp(-0.5 * (o / sigma) ** 2) for o in range(-r, r + 1)])
-    g /= math.fsum(g.tolist())
+    g = gaussian_taps(sigma, r)
     H, W = views.shape[-2:]
     out = np.zeros_like(views)
     for o, w in zip(range(-r, r + 1), g):
@@ -396,7 +393,7 @@ def _finish(out: dict, sigma: float, fill: bool, median: int):
     valid = np.isfinite(disp)
     with np.errstate(divide="ignore", invalid="ignore"):
         med = np.nanmedian(err[valid]) if valid.any() else np.nan
-        conf = np.where(valid, -np.log10(err / med), np.nan)
+        conf = np.where(valid, -log10(err / med), np.nan)
     filled = np.zeros((H, W), dtype=bool)
     if fill and valid.any() and not valid.all():
         disp, filled = _fill(disp, valid, out["inside"], sigma)
@@ -436,12 +433,19 @@ def _fill(disp, valid, inside, sigma):
 
     Returns ``(disparity, filled)``, both shape (H, W).
     """
-    from scipy.ndimage import distance_transform_edt, gaussian_filter
+    from scipy.ndimage import correlate1d, distance_transform_edt
 
     H, W = disp.shape
     s = min(2 * float(sigma), float(max(H, W)))
-    num = gaussian_filter(np.where(valid, disp, 0.0), s, mode="nearest")
-    den = gaussian_filter(valid.astype(float), s, mode="nearest")
+    # scipy's gaussian_filter (truncated at 4 sigma), with the kernel made here: scipy
+    # builds it with numpy's SIMD exp, whose bits depend on the CPU
+    g = gaussian_taps(s, int(4.0 * s + 0.5))
+
+    def smooth(a):
+        return correlate1d(correlate1d(a, g, axis=0, mode="nearest"), g, axis=1,
+                           mode="nearest")
+    num = smooth(np.where(valid, disp, 0.0))
+    den = smooth(valid.astype(float))
     conv = ~valid & inside & (den > 1e-3)
     out = np.where(conv, num / np.where(den > 0, den, 1.0), disp)
     rest = ~(valid | conv)
@@ -522,7 +526,7 @@ def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate, lines,
     # negative on noise-free data; floor it nine decades below the median
     pos = E[fin & (E > 0)]
     floor = 1e-9 * float(np.median(pos)) if pos.size else 1e-300
-    L = np.log10(np.maximum(np.where(fin, E, 1.0), floor))
+    L = log10(np.maximum(np.where(fin, E, 1.0), floor))
     worst = L[fin].max() + 1.0 if fin.any() else 0.0
     C = np.where(fin, L, worst)
     guide = v[n // 2, n // 2]

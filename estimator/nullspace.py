@@ -50,7 +50,7 @@ class NullSpace(NamedTuple):
     valid : ndarray of bool, shape (N,)
     fallbacks : tuple of int, optional
         The fast solver's count of pixels it solved on its scalar path and, of those, by
-        LAPACK (None for the reference solver).
+        its full (Jacobi) decomposition (None for the reference solver).
     """
 
     P: np.ndarray

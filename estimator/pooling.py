@@ -98,10 +98,13 @@ def bell_square_sum(sigma: float) -> float:
     """``sum K^2`` of the 2-D bell of :func:`bell` (``1 / (4 pi sigma^2)`` for a
     Gaussian): a white noise's variance falls by this factor under it."""
     w = _box_width(sigma)
-    k = np.ones(1)
+    # the box's repeated convolution in Python floats, each sum exactly rounded (numpy's
+    # convolve goes through BLAS, whose sums round by the machine's CPU)
+    k = [1.0]
     for _ in range(_PASSES):
-        k = np.convolve(k, np.full(w, 1.0 / w))
-    return float(np.sum(k * k) ** 2)
+        k = [math.fsum(k[j] for j in range(max(0, i - w + 1), min(i, len(k) - 1) + 1)) / w
+             for i in range(len(k) + w - 1)]
+    return math.fsum(v * v for v in k) ** 2
 
 
 class _Support:
@@ -269,7 +272,7 @@ def _first_inverse_row(w, sup: _Support):
     det = s0 * c0 + sx * c1 + sy * c2
     # a plane needs samples within reach, not in one line: s0 above the running sums'
     # roundoff, and A far from singular
-    ok = (s0 > 1e-9 * s0.max()) & (det > 1e-9 * s0 ** 3 * sigma ** 4)
+    ok = (s0 > 1e-9 * s0.max()) & (det > 1e-9 * (s0 * s0 * s0) * sigma ** 4)
     with np.errstate(divide="ignore", invalid="ignore"):
         r = np.where(ok, 1.0 / det, np.nan)
     return c0, c1, c2, r

@@ -26,12 +26,12 @@ The solvers read J from a :class:`DenseTensor` (full matrices per pixel) or a
 
 from __future__ import annotations
 
-import math
 from itertools import combinations_with_replacement
 
 import numpy as np
 
 from .models import ROWS, ZOOM_ROW_SIGNALS, ZOOM_ROWS
+from .portable import gaussian_taps
 
 # every row's (base signal, t-power, monomial): the model rows and the zoom-blur rows
 _ROW_SIGNALS = {**ROWS, **ZOOM_ROW_SIGNALS}
@@ -59,10 +59,8 @@ def gaussian_moment_kernels(sigma: float, window: int) -> np.ndarray:
     """
     R = window // 2
     delta = np.arange(-R, R + 1, dtype=float)
-    # the C library's exp and an exactly rounded sum: numpy's SIMD exp rounds by the
-    # machine's CPU, which would change every estimate in the last bits elsewhere
-    w = np.array([math.exp(-0.5 * (d / sigma) ** 2) for d in delta.tolist()])
-    w /= math.fsum(w.tolist())
+    # the same bits on every machine (numpy's SIMD exp rounds by the CPU)
+    w = gaussian_taps(sigma, R)
     return np.stack([w, w * delta, w * delta ** 2])
 
 

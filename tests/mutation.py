@@ -186,8 +186,10 @@ MUTANTS = [
             T + "test_parts.py::test_a_model_carries_both_axes"),
            "no model needing a time axis (the rows with a factor t overlooked)"),
     Mutant("affine-err-white", "estimator/driver.py",
-           "        R = np.correlate(p, p, mode=\"full\") / np.dot(p, p)",
-           "        R = np.ones(1)", (T + "test_affine.py::test_error_estimates_bound_the_scatter",),
+           "        R = [math.fsum(p[i] * p[i + d] for i in range(len(p) - d)) / pp\n"
+           "             for d in range(len(p))]",
+           "        R = [1.0] + [0.0] * (len(p) - 1)",
+           (T + "test_affine.py::test_error_estimates_bound_the_scatter",),
            "the error estimates with the prefiltered noise taken as uncorrelated"),
     Mutant("affine-err-rotation-coef", "estimator/disentangle.py",
            "        [zero] + [0.5 * ((d * t1).sum(0) * t2 - (d * t2).sum(0) * t1) for d in dual])",

@@ -116,6 +116,8 @@ class Backend:
     """
 
     name = "numpy"
+    # whether tensor() returns a PackedTensor (estimator.driver.band_rows sizes its bands)
+    packed = False
     solve_affine = staticmethod(solve_affine)
 
     def scan(self, volume: np.ndarray):
@@ -170,6 +172,7 @@ class FFTBackend(Backend):
     """The FFT tensor with ``numpy.fft`` and LAPACK: the fast method on small images."""
 
     name = "fft"
+    packed = True
 
     def tensor(self, signals: dict, plan: TensorPlan) -> PackedTensor:
         from .spectral import structure_tensor_fft
@@ -188,6 +191,7 @@ class NumbaBackend(Backend):
     (:mod:`estimator._affine`)."""
 
     name = "numba"
+    packed = True
 
     def __init__(self):
         from . import _affine, _kernels, _solver, jit

@@ -31,7 +31,7 @@ from .signals import SignalPlan, signal_plan
 from .tensor import gaussian_moment_kernels, scaled, zoom_corrected, zoom_terms
 
 __all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
-           "window_halo", "band_halo", "temporal_reach"]
+           "window_halo", "band_halo", "temporal_reach", "band_rows", "BAND_BYTES"]
 
 # Pixels per call of the disentangling (whole rows): 8192 doubles are 64 KB, below
 # glibc's threshold for giving each array fresh pages of its own.
@@ -149,6 +149,57 @@ def band_halo(s: EstimatorSettings) -> int:
     R = support_radius(sigma)
     reach = pool_reach(sigma) + 2 * R + bell_radius(2.0 * s.sigma)
     return max(window_halo(s), texture_reach(s.window // 2)) + reach
+
+
+#: Bytes a band's signals, tensor and work arrays may take (:func:`band_rows`): at 512^2
+#: px a volume of 9 frames (and a recording's step of 17) is one band under every model.
+BAND_BYTES = 3 * 2 ** 29
+
+
+def band_rows(backend, W: int, n_ext: int, n_out: int, n_signals: int, frames: int,
+              halo: int, budget: int = BAND_BYTES) -> int:
+    """Output rows per band: at most as many as keep a band's arrays within ``budget``
+    bytes, so that memory does not grow with the image, and no fewer than 16.
+
+    A dense backend holds J as ``n_ext x n_ext`` matrices per pixel, twice (the zoom-blur
+    correction's ``T J T^T`` is made from it).  An FFT backend holds, over the band and
+    its ``halo`` rows either side, the ``n_signals`` base signals of the window's
+    ``frames`` and four complex half-spectra (a product's and its y-passes'), and over
+    the band's own rows the packed tensor (one plane per distinct entry of the ``n_out``
+    rows, at most ``n_out (n_out + 1) / 2``) and as many half-spectra while it sums them
+    (``tests/test_estimator_properties.py`` measures a band's peak against this).
+    Fewer, taller bands transform fewer halo rows: at 512^2 the affine model's 4 bands
+    of the former 512 MB rule took 2.6 s, one band 2.0 s (``bench/README.md``).
+
+    Parameters
+    ----------
+    backend : Backend
+        :func:`estimator.backends.select_backend`'s; ``packed`` tells the kinds apart.
+    W : int
+        Image width, px.
+    n_ext, n_out : int
+        Rows of J before and after the zoom-blur correction's sums.
+    n_signals, frames : int
+        Base signals (with the correction's) and frames of the temporal window.
+    halo : int
+        Rows either side of a band that its signals need.
+    budget : int
+        Bytes.
+
+    Returns
+    -------
+    int
+    """
+    if getattr(backend, "packed", False):
+        planes = n_out * (n_out + 1) // 2
+        spectrum = 16 * (W // 2 + 1)
+        every_row = n_signals * frames * 8 * W + 4 * spectrum
+        per_row = every_row + planes * (8 * W + spectrum)
+        fixed = 2 * halo * every_row
+    else:
+        # J and, as large, the zoom-blur correction's product T J (T^T)
+        per_row, fixed = 2 * W * n_ext * n_ext * 8, 0
+    return max(16, int((budget - fixed) // per_row))
 
 
 def temporal_reach(s: EstimatorSettings) -> int:
@@ -373,10 +424,15 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     T, Sy, Sx, H, W = vol.shape
     halo = plan.halo
     n = len(ext)
-    # J of a band takes rows * W * n^2 * 8 bytes; bound it (and the FFT work arrays) to
-    # ~512 MB, so memory does not grow with the image.
-    band = s.band_rows or max(16, int(512e6 // (W * n * n * 8)))
     splan = plan.signal_plan(extra)
+    band = s.band_rows
+    if band is None:
+        # as many bands as the budget asks, of equal height (a last band of a few rows
+        # would cost its halo's transforms for little)
+        most = band_rows(backend, W, n, len(rows), 6 + len(extra), len(plan.frames), halo,
+                         BAND_BYTES)
+        inner = max(1, H - 2 * halo)
+        band = -(-inner // -(-inner // most))
     tplan = TensorPlan(tvals=plan.frames - plan.k_ref, rows=ext,
                        kernels=gaussian_moment_kernels(s.sigma, s.window),
                        radius=s.window // 2, spatial_radius=plan.spatial.radius,

@@ -69,7 +69,8 @@ class EstimatorSettings:
         apparent brightness change or motion (``docs/model.md``, *The zoom blur*).  The
         paper does not correct it (``False`` reads the data rows as the paper does).
     band_rows : int or None
-        Output rows processed at a time (bounds memory); default from a 512 MB budget.
+        Output rows processed at a time (bounds memory); default bands of equal height
+        whose arrays fit in about 1.5 GiB (:func:`estimator.driver.band_rows`).
     combine : {"inverse_variance", "mean"}
         How the twice-estimated ``v, z_x, z_y, u_z`` are combined: weighted by their
         first-order error estimates (default), or plainly averaged.

@@ -130,6 +130,60 @@ def test_band_processing_is_invisible():
         _close(a[name], b[name], 3e-11, name)
 
 
+def test_a_float32_volume_gives_the_maps_of_its_float64_copy():
+    """The pipeline hands the estimator a float32 recording as it is stored: every map
+    must be bit for bit that of the same samples as float64 (float32 -> float64 is exact
+    and every product is taken in float64), on each backend and both motion models."""
+    for size, method, backend in ((80, "fast", "fft"), (160, "fast", "numba"),
+                                  (80, "reference", "reference")):
+        sv = make_sinusoid(height=size, width=size, frames=9, dtype=np.float32)
+        for motion in ("translation", "affine"):
+            a = estimate(sv.volume, sv.focal_length, sv.camera_spacing, method=method,
+                         motion=motion)
+            b = estimate(sv.volume.astype(np.float64), sv.focal_length, sv.camera_spacing,
+                         method=method, motion=motion)
+            assert a.settings["backend"] == b.settings["backend"] == backend
+            for q in a.maps:
+                assert np.array_equal(a[q], b[q], equal_nan=True), (backend, motion, q)
+
+
+def test_a_bands_arrays_stay_within_the_budget(monkeypatch):
+    """The band height comes from a model of what a band holds (estimator.driver.
+    band_rows); under a budget of 40 MB a 160 x 256 image is cut into several bands and
+    each band's signals and tensor, as traced by tracemalloc (numpy reports its
+    allocations to it), take at most the budget (measured 31-34 MB)."""
+    import tracemalloc
+
+    from gridflow.estimator import backends, driver
+
+    sv = make_sinusoid(height=160, width=256, noise=0.01)
+    budget = 40e6
+    monkeypatch.setattr(driver, "BAND_BYTES", budget)
+    peaks = []
+    tensor = backends.NumbaBackend.tensor
+
+    def traced(self, signals, plan):
+        tracemalloc.reset_peak()
+        before = tracemalloc.get_traced_memory()[0]
+        held = sum(v.nbytes for v in signals.values())
+        out = tensor(self, signals, plan)
+        peaks.append(tracemalloc.get_traced_memory()[1] - before + held)
+        return out
+
+    monkeypatch.setattr(backends.NumbaBackend, "tensor", traced)
+    tracemalloc.start()
+    try:
+        for motion in ("translation", "affine"):
+            peaks.clear()
+            e = estimate_models(sv.volume, sv.focal_length, sv.camera_spacing,
+                                models=("full",), motion=motion)["full"]
+            assert e.settings["backend"] == "numba"
+            assert len(peaks) >= 2, (motion, peaks)
+            assert max(peaks) <= budget, (motion, peaks)
+    finally:
+        tracemalloc.stop()
+
+
 def test_float32_matches_float64(run):
     """float32 storage rounds each sample by at most 2^-24 relative: a white noise of
     std <= 2^-24 * max|I| / sqrt(3) = 3.4e-8 (max|I| = 1).  Estimation errors scale

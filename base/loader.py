@@ -258,11 +258,11 @@ class FolderReader:
         self.path, self.m, self.by_frame = path, m, by_frame
         self.first, self.image_shape, self.kind = first, shape, kind
 
-    def read(self, start: int, stop: int, r0: int, r1: int) -> np.ndarray:
+    def read(self, start: int, stop: int, r0: int, r1: int, dtype=np.float64) -> np.ndarray:
         Sy, Sx = self.m["_grid"]
         if start == 0 and stop == self.m["_frames"]:
             _check_memory(self.path, (stop - start, Sy, Sx, r1 - r0, self.image_shape[1]))
-        out = np.empty((stop - start, Sy, Sx, r1 - r0, self.image_shape[1]))
+        out = np.empty((stop - start, Sy, Sx, r1 - r0, self.image_shape[1]), dtype=dtype)
         for t in range(start, stop):
             for k, p in enumerate(self.by_frame[t]):
                 if not p.is_file():

@@ -244,10 +244,15 @@ class Source:
     def frames(self) -> int:
         return self.shape[0]
 
-    def read(self, start: int, stop: int, rows: tuple | None = None) -> np.ndarray:
+    def read(self, start: int, stop: int, rows: tuple | None = None,
+             dtype=np.float64) -> np.ndarray:
         """Frames ``start .. stop - 1`` as float64, shape ``(stop - start, Sy, Sx, H, W)``;
         with ``rows = (r0, r1)`` only image rows ``r0 .. r1 - 1`` (a row band: its memory
-        is the band's, not the frame's, where the format allows)."""
+        is the band's, not the frame's, where the format allows).  ``dtype`` float32
+        reads a source that stores float32 (:attr:`itemsize` 4) as it is: the estimator
+        takes it and gives the same maps bit for bit, from half the memory."""
+        if np.dtype(dtype) not in (np.float32, np.float64):
+            raise SourceError(f"{self.path}: frames read as float32 or float64, got {dtype!r}")
         if not 0 <= start < stop <= self.frames:
             raise SourceError(f"{self.path}: frames {start}..{stop - 1} requested of "
                               f"0..{self.frames - 1}")
@@ -255,7 +260,20 @@ class Source:
         r0, r1 = (0, H) if rows is None else (int(rows[0]), int(rows[1]))
         if not 0 <= r0 < r1 <= H:
             raise SourceError(f"{self.path}: rows {r0}..{r1 - 1} requested of 0..{H - 1}")
-        return self._reader.read(start, stop, r0, r1)
+        return self._reader.read(start, stop, r0, r1, np.dtype(dtype))
+
+    @property
+    def itemsize(self) -> int:
+        """Bytes per sample as the source stores (and a kept frame holds) it."""
+        return int(getattr(self._reader, "itemsize", 8))
+
+    def cache_frames(self, n: int) -> None:
+        """Keep up to ``n`` decoded frames for later reads where the format decodes frames
+        (a recording store: steps whose windows overlap decode each frame once); a no-op
+        for the others."""
+        keep = getattr(self._reader, "cache_frames", None)
+        if keep is not None:
+            keep(n)
 
     def truth(self, frame: int, names=None) -> dict[str, np.ndarray]:
         """Ground truth at the reference camera and ``frame``: name to ``(H, W)`` float64,
@@ -316,8 +334,8 @@ class ArrayReader:
     def __init__(self, volume: np.ndarray, truth: dict, files: list, identity: dict):
         self.volume, self._truth, self._files, self._identity = volume, truth, files, identity
 
-    def read(self, start: int, stop: int, r0: int, r1: int) -> np.ndarray:
-        return np.asarray(self.volume[start:stop, :, :, r0:r1], dtype=np.float64)
+    def read(self, start: int, stop: int, r0: int, r1: int, dtype=np.float64) -> np.ndarray:
+        return np.asarray(self.volume[start:stop, :, :, r0:r1], dtype=dtype)
 
     def truth(self, frame: int, names: tuple) -> dict:
         return {n: np.asarray(self._truth[n], dtype=np.float64) for n in names

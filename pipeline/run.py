@@ -553,7 +553,10 @@ def estimate_step(plan: Plan, i: int, b: int, progress=None) -> tuple[dict, int]
                            np.zeros((r1 - r0, W), dtype=bool)) for m, qs in names.items()}
         return nan, stamp
     a0, a1 = (max(0, r0 - halo), min(H, r1 + halo)) if len(plan.bands) > 1 else (0, H)
-    window = src.read(lo, hi, rows=(a0, a1))
+    # float32 where the source stores it and the strategy takes it: half the memory and
+    # no conversion, the same maps
+    stored = src.itemsize == 4 and getattr(plan.strategy, "takes_float32", False)
+    window = src.read(lo, hi, rows=(a0, a1), dtype=np.float32 if stored else np.float64)
     try:
         mask = plan.strategy.step_mask(src, k)
         ests = plan.strategy.run(window, src.geometry.for_rows(a0), k - lo, progress,
@@ -599,6 +602,7 @@ def run_step(job: dict, i: int, b: int) -> dict:
     t0 = time.perf_counter()
     source, sink = _opened(job["source"], job["views"], json.dumps(job["sink"],
                                                                     sort_keys=True))
+    source.cache_frames(job.get("cache_frames", 0))
     ests, stamp = estimate_step(replace(job["plan"], source=source), i, b)
     t1 = time.perf_counter()
     sink.write(i, b, ests, stamp)
@@ -623,6 +627,26 @@ def _local(plan: Plan, o: RunOptions) -> tuple[int, int, int]:
                          "GiB (--memory GIB, --band-rows)")
     n = max(1, min(n, budget // need))
     return n, max(1, cores // n), budget
+
+
+def frame_cache(plan: Plan, tasks: int, budget: int | None = None) -> int:
+    """Decoded frames a worker keeps (:meth:`gridflow.volume.Source.cache_frames`) for
+    ``tasks`` steps at once: a window and one frame per further step, so that steps one
+    frame apart decode one frame each; none where steps are cut into row bands (memory is
+    short there), where steps do not share frames, or where the frames would not fit in
+    the ``budget`` bytes beside the steps' own (:func:`step_memory`)."""
+    if len(plan.bands) != 1 or len(plan.frames) < 2:
+        return 0
+    frames = plan.window_frames
+    if max(b - a for a, b in zip(plan.frames, plan.frames[1:])) >= frames:
+        return 0
+    T, Sy, Sx, H, W = plan.source.shape
+    n = frames + tasks - 1
+    if budget is not None:
+        need = tasks * step_memory(plan.source.shape, frames)
+        if need + n * Sy * Sx * H * W * plan.source.itemsize > budget:
+            return 0
+    return n
 
 
 def _check_options(o: RunOptions) -> None:
@@ -787,10 +811,15 @@ def _run_tasks(plan: Plan, sink, todo, o: RunOptions, views, report: RunReport,
            "sink": sink.spec(), "plan": replace(plan, source=None), "threads": 1}
     if client is not None:
         where = f"the dask cluster at {o.connect}"
-        n = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
+        workers = client.scheduler_info()["workers"].values()
+        n = sum(w.get("nthreads", 1) for w in workers)
+        # each worker process keeps its own frames (the cluster's memory is its own)
+        job["cache_frames"] = frame_cache(plan, max((w.get("nthreads", 1) for w in workers),
+                                                    default=1))
     else:
         n, threads, budget = _local(plan, o)
         job["threads"] = threads
+        job["cache_frames"] = frame_cache(plan, n, budget)
         unit = "step" if nb == 1 else "band"
         where = (f"this machine: {n} {unit}(s) at once, {threads} numba thread(s) each, "
                  f"memory budget {budget / 2**30:.1f} GiB")

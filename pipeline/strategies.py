@@ -56,6 +56,9 @@ class SinglePass:
         return EstimatorSettings(**{k: v for k, v in self.settings.items()
                                     if k != "ref_frame"})
 
+    # the estimator takes float32 frames as they are (the same maps bit for bit)
+    takes_float32 = True
+
     @property
     def reach(self) -> int:
         from gridflow.estimator import temporal_reach

@@ -837,3 +837,118 @@ def test_growth_report_per_leaf_over_confident_pixels(recording, tmp_path, capsy
     kept = confident(sd, where, 3.0)
     assert not kept[0, 0] and kept[1, 1] and not kept[2, 2] and kept.sum() == 14
     assert confident(sd, where, 0.0).all() and confident(None, where).all()
+
+
+# --- frames decoded once (issue 39) -------------------------------------------------------
+
+
+def _counting(source, monkeypatch) -> list:
+    """Every frame the recording's reader decodes, in order."""
+    reader = source._reader
+    decoded = []
+    volume = reader.volume
+
+    class Counting:
+        def __getattr__(self, name):
+            return getattr(volume, name)
+
+        def __getitem__(self, key):
+            decoded.append(key)
+            return volume[key]
+
+    monkeypatch.setattr(reader, "volume", Counting())
+    return decoded
+
+
+def test_steps_one_frame_apart_decode_each_frame_once(recording, tmp_path, monkeypatch):
+    """With frames kept (Source.cache_frames), windows 0..4 then 1..5 decode frames 0..5
+    once each and read the same numbers as a reader that keeps none; float32 reads are
+    the stored frames exactly; a frame rewritten since it was kept is decoded again; at
+    most the capacity is kept."""
+    import shutil
+
+    import zarr
+
+    from gridflow.sources import open_source
+
+    rec = tmp_path / "rec.zarr"
+    shutil.copytree(recording, rec)
+    plain = open_source(rec)
+    kept = open_source(rec)
+    kept.cache_frames(6)
+    decoded = _counting(kept, monkeypatch)
+    a = kept.read(0, 5)
+    b = kept.read(1, 6)
+    assert decoded == [0, 1, 2, 3, 4, 5]
+    assert np.array_equal(a, plain.read(0, 5)) and np.array_equal(b, plain.read(1, 6))
+    assert a.dtype == np.float64
+    f32 = kept.read(1, 6, dtype=np.float32)
+    assert f32.dtype == np.float32 and decoded == [0, 1, 2, 3, 4, 5]
+    stored = np.asarray(zarr.open_group(str(rec), mode="r")["volume"][1:6])
+    assert np.array_equal(f32, stored)
+    # a repair of frame 3 (new content, a later modification time): decoded again
+    time.sleep(0.01)
+    g = zarr.open_group(str(rec), mode="r+")
+    g["volume"][3] = stored[2] + 1.0
+    c = kept.read(1, 6)
+    assert decoded[6:] == [3], decoded
+    assert np.array_equal(c[2], (stored[2] + np.float32(1.0)).astype(np.float64))
+    assert len(kept._reader._cache) == 6
+    kept.cache_frames(2)
+    assert sorted(kept._reader._cache) == [4, 5]
+    with pytest.raises(Exception, match="float32 or float64"):
+        kept.read(0, 2, dtype=np.int16)
+
+
+@pytest.mark.parametrize("cache", [0, 6])
+def test_a_non_finite_frame_is_named_whether_frames_are_kept_or_not(recording, tmp_path,
+                                                                    cache):
+    """A frame holding NaN is refused by number on a read that decodes it, kept frames
+    or not."""
+    import shutil
+
+    import zarr
+
+    from gridflow.recording import RecordingError
+    from gridflow.sources import open_source
+
+    rec = tmp_path / "rec.zarr"
+    shutil.copytree(recording, rec)
+    g = zarr.open_group(str(rec), mode="r+")
+    frame = np.asarray(g["volume"][7])
+    frame[1, 2, 10, 11] = np.nan
+    g["volume"][7] = frame
+    src = open_source(rec)
+    src.cache_frames(cache)
+    src.read(0, 7)
+    with pytest.raises(RecordingError, match="frame 7 holds non-finite intensities"):
+        src.read(5, 9)
+
+
+def test_float32_windows_and_kept_frames_give_the_same_store(recording, tmp_path,
+                                                             monkeypatch):
+    """The pipeline reads a float32 recording as float32 and keeps decoded frames for
+    the next steps: its store equals, array for array, one read as float64 with no frame
+    kept (the estimator's arithmetic is float64 either way)."""
+    from gridflow.pipeline import run as run_mod
+    from gridflow.pipeline import strategies
+
+    settings = {"sigma": 2.0, "window": 9}
+    fast, plain = tmp_path / "fast.zarr", tmp_path / "plain.zarr"
+    reads = []
+    real = run_mod.estimate_step
+
+    def spy(plan, i, b, progress=None):
+        out = real(plan, i, b, progress)
+        reads.append(len(plan.source._reader._cache))
+        return out
+
+    monkeypatch.setattr(run_mod, "estimate_step", spy)
+    run_series(recording, fast, every=1, settings=settings, first=12, last=20, workers=1)
+    # frames were kept: a window (17 frames at the affine default) and no more
+    assert max(reads) == 17, reads
+    monkeypatch.setattr(strategies.SinglePass, "takes_float32", False)
+    monkeypatch.setattr(run_mod, "frame_cache", lambda *a, **k: 0)
+    run_mod._opened.cache_clear()
+    run_series(recording, plain, every=1, settings=settings, first=12, last=20, workers=1)
+    assert same_arrays(store_arrays(fast), store_arrays(plain))

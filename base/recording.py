@@ -148,7 +148,6 @@ def open_recording_store(path) -> Source:
 class _ZarrReader:
     def __init__(self, path: Path, group):
         import threading
-        from collections import OrderedDict
 
         self.path, self.group = path, group
         self.volume = group["volume"]
@@ -158,7 +157,8 @@ class _ZarrReader:
         self._per_frame = [range(-(-n // c)) for n, c in zip(vol.shape[1:], self._grid[1:])]
         # decoded whole frames (as stored, checked finite) kept for the next steps:
         # frame -> (signature of its chunk files, frames); see cache_frames
-        self._cache: OrderedDict = OrderedDict()
+        self._cache: dict = {}
+        self._pending: dict = {}                 # frame -> Event, while a thread decodes it
         self._capacity = 0
         self._lock = threading.Lock()
 
@@ -167,8 +167,8 @@ class _ZarrReader:
         return int(self.volume.dtype.itemsize)
 
     def cache_frames(self, n: int) -> None:
-        """Keep up to ``n`` decoded whole frames (least recently read dropped first), so
-        that steps whose windows overlap decode each frame once: at 512^2 px and 5 x 5
+        """Keep up to ``n`` decoded whole frames (those farthest from the frame decoded
+        last dropped first), so that steps whose windows overlap decode each frame once: at 512^2 px and 5 x 5
         views decoding 17 frames took 1.0 s and their finiteness check 0.08-0.2 s, a
         third of an affine step.  A kept frame is used only while its chunk files' names,
         sizes and modification times are those it was decoded from (a frame rewritten
@@ -176,7 +176,7 @@ class _ZarrReader:
         with self._lock:
             self._capacity = max(0, int(n))
             while len(self._cache) > self._capacity:
-                self._cache.popitem(last=False)
+                del self._cache[next(iter(self._cache))]    # the first kept
 
     def _signature(self, frame: int) -> tuple:
         out = []
@@ -189,22 +189,41 @@ class _ZarrReader:
         return tuple(out)
 
     def _frame(self, t: int) -> np.ndarray:
-        """Frame ``t`` decoded and checked, from the cache where it is still current."""
+        """Frame ``t`` decoded and checked, from the cache where it is still current; a
+        frame another thread is decoding is waited for, not decoded twice."""
+        import threading
+
         sig = self._signature(t)
-        with self._lock:
-            hit = self._cache.get(t)
-            if hit is not None and hit[0] == sig:
-                self._cache.move_to_end(t)
-                return hit[1]
-        frame = np.asarray(self.volume[t])
-        self._check_finite(frame, t)
-        with self._lock:
-            if self._capacity:
-                self._cache[t] = (sig, frame)
-                self._cache.move_to_end(t)
-                while len(self._cache) > self._capacity:
-                    self._cache.popitem(last=False)
-        return frame
+        while True:
+            with self._lock:
+                hit = self._cache.get(t)
+                if hit is not None and hit[0] == sig:
+                    return hit[1]
+                pending = self._pending.get(t)
+                mine = pending is None
+                if mine:
+                    pending = self._pending[t] = threading.Event()
+            if mine:
+                break
+            # then look again: kept by the other thread, or (it failed, or the frame was
+            # dropped since) decoded here
+            pending.wait()
+        try:
+            frame = np.asarray(self.volume[t])
+            self._check_finite(frame, t)
+            with self._lock:
+                if self._capacity:
+                    self._cache[t] = (sig, frame)
+                    # the frames farthest from this one go first: steps run in order, up
+                    # or down, and least-recently-used would drop the very frame the next
+                    # step reads next (a window read backwards missed every frame)
+                    while len(self._cache) > self._capacity:
+                        del self._cache[max(self._cache, key=lambda f: (abs(f - t), f))]
+            return frame
+        finally:
+            with self._lock:
+                del self._pending[t]
+            pending.set()
 
     def _check_finite(self, out: np.ndarray, start: int) -> None:
         bad = ~np.isfinite(out)

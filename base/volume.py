@@ -246,13 +246,18 @@ class Source:
 
     def read(self, start: int, stop: int, rows: tuple | None = None,
              dtype=np.float64) -> np.ndarray:
-        """Frames ``start .. stop - 1`` as float64, shape ``(stop - start, Sy, Sx, H, W)``;
-        with ``rows = (r0, r1)`` only image rows ``r0 .. r1 - 1`` (a row band: its memory
-        is the band's, not the frame's, where the format allows).  ``dtype`` float32
-        reads a source that stores float32 (:attr:`itemsize` 4) as it is: the estimator
-        takes it and gives the same maps bit for bit, from half the memory."""
-        if np.dtype(dtype) not in (np.float32, np.float64):
+        """Frames ``start .. stop - 1``, shape ``(stop - start, Sy, Sx, H, W)``, as float64
+        or, for a source that stores float32 (:attr:`itemsize` 4), as ``dtype`` float32:
+        as stored, which the estimator takes and gives the same maps from bit for bit, in
+        half the memory.  With ``rows = (r0, r1)`` only image rows ``r0 .. r1 - 1`` (a
+        row band: its memory is the band's, not the frame's, where the format allows)."""
+        dtype = np.dtype(dtype)
+        if dtype not in (np.float32, np.float64):
             raise SourceError(f"{self.path}: frames read as float32 or float64, got {dtype!r}")
+        if dtype == np.float32 and self.itemsize != 4:
+            raise SourceError(f"{self.path}: frames read as float32 only where the source "
+                              f"stores float32 (this one: {self.itemsize}-byte samples); "
+                              "read them as float64")
         if not 0 <= start < stop <= self.frames:
             raise SourceError(f"{self.path}: frames {start}..{stop - 1} requested of "
                               f"0..{self.frames - 1}")
@@ -260,11 +265,13 @@ class Source:
         r0, r1 = (0, H) if rows is None else (int(rows[0]), int(rows[1]))
         if not 0 <= r0 < r1 <= H:
             raise SourceError(f"{self.path}: rows {r0}..{r1 - 1} requested of 0..{H - 1}")
-        return self._reader.read(start, stop, r0, r1, np.dtype(dtype))
+        return self._reader.read(start, stop, r0, r1, dtype)
 
     @property
     def itemsize(self) -> int:
-        """Bytes per sample as the source stores (and a kept frame holds) it."""
+        """Bytes per sample of the frames a read returns at their narrowest: 4 for a
+        recording stored as float32 (what a kept frame holds), else 8 (float64: the
+        formats that decode images or hold a volume read as float64)."""
         return int(getattr(self._reader, "itemsize", 8))
 
     def cache_frames(self, n: int) -> None:

@@ -55,12 +55,14 @@ def _gridflow(*args, **kw) -> tuple[float, float, int, subprocess.CompletedProce
     """Run ``gridflow ARGS`` in a fresh process: (wall s, CPU s, peak RSS bytes, result)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    # the peak of this one child: run it under a wrapper that reports its own rusage
+    # the peak of this one child: run it under a wrapper that reports its own
     code = ("import resource, sys, runpy; sys.argv = ['gridflow'] + sys.argv[1:]\n"
             "try:\n    runpy.run_module('gridflow.bench.cli', run_name='__main__')\n"
             "except SystemExit as e:\n    code = e.code\nelse:\n    code = 0\n"
-            "r = resource.getrusage(resource.RUSAGE_SELF)\n"
-            "sys.stderr.write(f'\\nPEAK_RSS_KB {r.ru_maxrss}\\n'); sys.exit(code)")
+            # VmHWM, not ru_maxrss: the latter is inherited across fork + exec from the
+            # parent (a benchmark that held gigabytes would show them as the child's)
+            "peak = [l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM:')]\n"
+            "sys.stderr.write(f'\\nPEAK_RSS_KB {peak[0]}\\n'); sys.exit(code)")
     r = subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True,
                        text=True, **kw)
     wall = time.perf_counter() - t0

@@ -1,6 +1,6 @@
 """Throughput benchmark: the fast estimator against an honest straightforward baseline.
 
-    python -m gridflow.bench.throughput                 # all sections (about 5 minutes)
+    python -m gridflow.bench.throughput                 # all sections (about 10 minutes)
     python -m gridflow.bench.throughput --sections inprocess
     python -m gridflow.bench.throughput --sizes 256 512 --cli-size 512
 
@@ -35,6 +35,15 @@ Sections (each prints its table):
     disentangling, pooling, checks), measured around the backend's calls, in
     ``--repeat`` runs: each stage's share of the run's wall time and the spread over the
     runs.
+``recording``
+    A recording as a grower runs it: ``gridflow record`` (``--rec-frames`` frames of 5 x 5
+    views at ``--size``, sensor noise 0.003), then ``gridflow estimate REC -o MAPS.zarr
+    --every 1`` over ``--rec-steps`` steps, each motion model, ``--repeat`` times, each a
+    fresh process on the default local scheduler: the run's own steps per second (as it
+    prints them: over its run, the store's preparation included, the process's start-up
+    and imports not), the process's wall
+    and CPU time and its peak resident memory; and one step's window estimated by the
+    baseline in this process, against which the fast step's time is set.
 ``scaling``
     The fast path alone at each of ``--sizes``, each in a fresh process: time, pixels per
     second over the *interior* (pixels with a full window: the border is 46 % of a 256^2
@@ -52,6 +61,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -64,7 +74,7 @@ from gridflow.estimator import MODELS, estimate
 from gridflow.estimator.models import AFFINE, TRANSLATION
 from gridflow.generators import make_sinusoid
 
-SECTIONS = ("inprocess", "cli", "scaling", "zoom", "stages")
+SECTIONS = ("inprocess", "cli", "scaling", "zoom", "stages", "recording")
 
 
 def _volume(size: int, dtype=np.float64):
@@ -226,6 +236,48 @@ def cli(size: int, repeat: int) -> dict:
                 ratio=bw / cli_s)
 
 
+def recording(size: int, frames: int, steps: int, repeat: int) -> list[dict]:
+    """``gridflow estimate REC --every 1`` per motion model: see the module docstring."""
+    import re
+
+    from gridflow.bench.series_bench import _gridflow
+    from gridflow.estimator import temporal_reach
+    from gridflow.estimator.settings import EstimatorSettings
+    from gridflow.sources import open_source
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        rec = Path(tmp) / "rec.zarr"
+        _gridflow("record", "--frames", frames, "--height", size, "--width", size,
+                  "--noise", 0.003, "-o", rec, "--no-progress")
+        src = open_source(rec)
+        for motion in (TRANSLATION.name, AFFINE.name):
+            reach = temporal_reach(EstimatorSettings(motion=motion))
+            first = reach
+            last = min(frames - 1 - reach, first + steps - 1)
+            runs = []
+            for i in range(repeat):
+                out = Path(tmp) / f"{motion}{i}.zarr"
+                wall, cpu, peak, r = _gridflow(
+                    "estimate", rec, "--every", 1, "--first", first, "--last", last,
+                    "--motion", motion, "-o", out, "--no-progress")
+                m = re.search(r"(\d+) now in ([\d.]+) s, ([\d.]+) steps/s", r.stdout)
+                if m is None:
+                    raise RuntimeError(f"no rate in gridflow's report:\n{r.stdout}")
+                runs.append(dict(steps=int(m.group(1)), run_s=float(m.group(2)),
+                                 rate=float(m.group(3)), wall=wall, cpu=cpu,
+                                 peak_mb=peak / 2**20))
+                shutil.rmtree(out)
+            window = src.read(first - reach, first + reach + 1)
+            g = src.geometry
+            bw, bc, _ = _timed(lambda: estimate(window, g.focal_length, g.camera_spacing,
+                                                motion=motion, method="reference"), 1)
+            window = None                       # 890 MB at 512^2 (affine): not kept
+            rows.append(dict(motion=motion, frames=2 * reach + 1, runs=runs, base_wall=bw,
+                             base_cpu=bc))
+    return rows
+
+
 def _peak_rss_mb() -> float:
     """Peak resident set size of this process (VmHWM: unlike ru_maxrss it is not
     inherited across fork + exec from the parent)."""
@@ -278,6 +330,10 @@ def main(argv=None) -> int:
     ap.add_argument("--cli-size", type=int, default=1024)
     ap.add_argument("--sizes", type=int, nargs="*", default=[256, 512, 1024, 2048],
                     help="scaling table sizes")
+    ap.add_argument("--rec-frames", type=int, default=26,
+                    help="frames of the recording section's recording (default 26)")
+    ap.add_argument("--rec-steps", type=int, default=8,
+                    help="steps of each recording run (default 8)")
     ap.add_argument("--_one", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a._one:
@@ -336,6 +392,25 @@ def main(argv=None) -> int:
             w = [r["wall"] for r in mine]
             print(f"| {motion} | {wall:.3f} ({min(w):.3f}-{max(w):.3f}) | "
                   + " | ".join(cells) + " |", flush=True)
+    if "recording" in a.sections:
+        print(f"\na recording, {a.size}x{a.size} px, 5x5 views: `gridflow estimate REC -o "
+              f"MAPS.zarr --every 1` over {a.rec_steps} steps, default local scheduler, "
+              f"{a.repeat} fresh processes each (steps/s: the run's own, as it prints "
+              "it; wall and CPU: the whole process; peak: its resident memory, VmHWM); "
+              "baseline: one step's window by the reference in this process")
+        print("| motion | window frames | steps/s (median; range) | s a step | process wall "
+              "s | process CPU s | peak RSS MiB (max) | baseline s a window (CPU) | "
+              "baseline / step |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        for r in recording(a.size, a.rec_frames, a.rec_steps, a.repeat):
+            rate = [x["rate"] for x in r["runs"]]
+            med = float(np.median(rate))
+            print(f"| {r['motion']} | {r['frames']} | **{med:.3f}** ({min(rate):.3f}-"
+                  f"{max(rate):.3f}) | {1 / med:.2f} | "
+                  f"{np.median([x['wall'] for x in r['runs']]):.1f} | "
+                  f"{np.median([x['cpu'] for x in r['runs']]):.1f} | "
+                  f"{max(x['peak_mb'] for x in r['runs']):.0f} | {r['base_wall']:.1f} "
+                  f"({r['base_cpu']:.1f}) | **{r['base_wall'] * med:.1f}** |", flush=True)
     if "scaling" in a.sections and a.sizes:
         print("\nscaling, fast path, full model, float32 volume, one fresh process per size")
         print("| size | seconds | interior px | interior kpx/s | image kpx/s | volume MB | "

@@ -31,7 +31,8 @@ from .signals import SignalPlan, signal_plan
 from .tensor import gaussian_moment_kernels, scaled, zoom_corrected, zoom_terms
 
 __all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
-           "window_halo", "band_halo", "temporal_reach", "band_rows", "BAND_BYTES"]
+           "window_halo", "band_halo", "temporal_reach", "band_rows", "BAND_BYTES",
+           "estimate_memory"]
 
 # Pixels per call of the disentangling (whole rows): 8192 doubles are 64 KB, below
 # glibc's threshold for giving each array fresh pages of its own.
@@ -156,6 +157,18 @@ def band_halo(s: EstimatorSettings) -> int:
 BAND_BYTES = 3 * 2 ** 29
 
 
+def _band_model(packed: bool, W: int, n_ext: int, n_out: int, n_signals: int, frames: int,
+                halo: int) -> tuple[int, int]:
+    """``(bytes per output row, bytes per band)`` of a band (:func:`band_rows`)."""
+    if packed:
+        planes = n_out * (n_out + 1) // 2
+        spectrum = 16 * (W // 2 + 1)
+        every_row = n_signals * frames * 8 * W + 4 * spectrum
+        return every_row + planes * (8 * W + spectrum), 2 * halo * every_row
+    # J and, as large, the zoom-blur correction's product T J (T^T)
+    return 2 * W * n_ext * n_ext * 8, 0
+
+
 def band_rows(backend, W: int, n_ext: int, n_out: int, n_signals: int, frames: int,
               halo: int, budget: int = BAND_BYTES) -> int:
     """Output rows per band: at most as many as keep a band's arrays within ``budget``
@@ -190,16 +203,55 @@ def band_rows(backend, W: int, n_ext: int, n_out: int, n_signals: int, frames: i
     -------
     int
     """
-    if getattr(backend, "packed", False):
-        planes = n_out * (n_out + 1) // 2
-        spectrum = 16 * (W // 2 + 1)
-        every_row = n_signals * frames * 8 * W + 4 * spectrum
-        per_row = every_row + planes * (8 * W + spectrum)
-        fixed = 2 * halo * every_row
-    else:
-        # J and, as large, the zoom-blur correction's product T J (T^T)
-        per_row, fixed = 2 * W * n_ext * n_ext * 8, 0
+    per_row, fixed = _band_model(getattr(backend, "packed", False), W, n_ext, n_out,
+                                 n_signals, frames, halo)
     return max(16, int((budget - fixed) // per_row))
+
+
+# Bytes per image pixel that an estimate holds besides its bands (its maps, the affine
+# model's pooling inputs, the solver's per-pixel results and the signals' intermediates),
+# and the factor on the band model, of estimate_memory: an upper envelope of the peaks
+# measured (VmHWM over the call less the RSS before it, float32 sinusoid volumes of 5 x 5
+# views, the full model, numba backend): 512^2 x 9 frames translation 585 MiB (modelled
+# 951), 512^2 x 17 affine 1054 MiB (1674), 256^2 x 9 affine 269 MiB (320), 512 x 200 x
+# 17 affine 427 MiB (560), 1024^2 x 9 translation 1811 MiB (2319).
+_MAP_BYTES = 600
+_BAND_MARGIN = 1.25
+
+
+def estimate_memory(shape, settings: EstimatorSettings | None = None,
+                    models=("full",), method: str = "fast") -> int:
+    """Bytes :func:`estimate_models` holds beyond its volume for a volume of ``shape``
+    ``(T, Sy, Sx, H, W)``: its bands (:func:`band_rows`'s model, at most
+    :data:`BAND_BYTES` a band, with a margin) and its whole-image maps (an envelope of
+    measured peaks; see the constants above).  For planning memory (the pipeline's
+    tasks), not a bound that holds on every machine.
+
+    Parameters
+    ----------
+    shape : tuple of int
+    settings : EstimatorSettings, optional
+    models : tuple of str
+    method : str
+        As ``estimate_models``'s.
+
+    Returns
+    -------
+    int
+    """
+    s = settings or EstimatorSettings()
+    T, Sy, Sx, H, W = shape
+    mdl = [get_model(m, 2 if Sy > 1 else 1, T == 1, s.motion) for m in models]
+    rows = covering_rows(mdl)
+    ext = zoom_rows(rows) if s.zoom_correction else rows
+    n_signals = 6 + len({ZOOM_ROW_SIGNALS[r][0] for r in ext[len(rows):]})
+    halo = window_halo(s)
+    packed = method == "fast"
+    inner = max(1, H - 2 * halo)
+    per_row, fixed = _band_model(packed, W, len(ext), len(rows), n_signals, T, halo)
+    most = max(16, int((BAND_BYTES - fixed) // per_row))
+    band = -(-inner // -(-inner // most))
+    return int(_BAND_MARGIN * (fixed + min(band, inner) * per_row) + _MAP_BYTES * H * W)
 
 
 def temporal_reach(s: EstimatorSettings) -> int:

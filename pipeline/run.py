@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import os
 import sys
+import threading
 import time
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
@@ -40,16 +41,10 @@ __all__ = ["RunOptions", "RunReport", "Plan", "estimate", "choose_strategy", "pl
 #: the brightness model of a sequence (a light field of one frame: bcc)
 DEFAULT_MODEL = "full"
 
-# bytes the estimator holds per byte of its input window, measured (bench/README.md,
-# *Long recordings*): the window as float64 plus the band's signals and tensor.  A whole
-# step: 3 (the estimator bounds its own bands' tensor, so a large window costs less than
-# in proportion).  A row band: its signals over all its rows at once cost more per byte,
-# 6.5, on top of the process itself (interpreter, libraries, numba's kernels), counted once
-# per task; measured at 512^2 px, 5 x 5 views, 9 frames, one task at a time: 16-row bands
-# 669 MiB (predicted 705), 102-row bands 993 MiB (1196), a whole step 1086 MiB (1575);
-# a tiny step 212 MiB.
-_MEMORY_FACTOR = 3.0
-_BAND_FACTOR = 6.5
+# the process itself (interpreter, libraries, numba's kernels), counted once per task;
+# measured: a tiny step 212 MiB.  What a step holds besides is its window as read and what
+# the estimator holds beyond it (gridflow.estimator.estimate_memory, an envelope of
+# measured peaks).
 _PROCESS = 0.22 * 2**30
 
 
@@ -402,17 +397,26 @@ def _steps(source, strategy, o: RunOptions, sink) -> tuple[tuple, tuple]:
     return frames, tuple((k - reach, k + reach + 1) for k in frames)
 
 
-def step_memory(shape, window_frames: int, rows: int | None = None, halo: int = 0) -> int:
-    """Bytes one task needs: the process plus, for a whole step, its window of
-    ``window_frames`` frames of a source of ``shape`` ``(T, Sy, Sx, H, W)`` as float64
-    times the estimator's factor, or with ``rows`` (fewer than the image's), the window
-    of a band of that many rows and ``halo`` rows either side times the band factor (the
-    constants above, measured)."""
+def step_memory(shape, window_frames: int, rows: int | None = None, halo: int = 0, *,
+                itemsize: int = 8, strategy=None) -> int:
+    """Bytes one task needs: the process, its window of ``window_frames`` frames of a
+    source of ``shape`` ``(T, Sy, Sx, H, W)`` as read (``itemsize`` bytes a sample) and
+    what the estimator holds beyond it (:func:`gridflow.estimator.estimate_memory`, for
+    ``strategy``'s settings and models: default the full model and the default
+    settings); with ``rows`` (fewer than the image's) those of a band of that many rows
+    and ``halo`` rows either side, plus one decoded frame (a band is read frame by
+    frame from whole-frame chunks)."""
+    from gridflow.estimator import estimate_memory
+
     T, Sy, Sx, H, W = shape
-    per_row = window_frames * Sy * Sx * W * 8
-    if rows is None or rows >= H:
-        return int(_PROCESS + per_row * H * _MEMORY_FACTOR)
-    return int(_PROCESS + per_row * min(H, rows + 2 * halo) * _BAND_FACTOR)
+    banded = rows is not None and rows < H
+    r = min(H, rows + 2 * halo) if banded else H
+    settings = getattr(strategy, "estimator_settings", None)
+    models = getattr(strategy, "models", ("full",))
+    method = settings.method if settings is not None else "fast"
+    est = estimate_memory((window_frames, Sy, Sx, r, W), settings, models, method)
+    window = window_frames * Sy * Sx * r * W * itemsize
+    return int(_PROCESS + window + est + (Sy * Sx * H * W * itemsize if banded else 0))
 
 
 def _budget(memory: float | None) -> int:
@@ -431,7 +435,8 @@ def _budget(memory: float | None) -> int:
     return int(0.5 * have) if have else 4 * 2**30
 
 
-def _band_rows(shape, window_frames: int, halo, o: RunOptions, budget: int) -> int:
+def _band_rows(shape, window_frames: int, halo, o: RunOptions, budget: int, *,
+               itemsize: int = 8, strategy=None) -> int:
     """Rows per band: all (one band) where a step fits the budget or the strategy needs
     whole images; else the widest bands that fit (``band_rows`` chooses them instead)."""
     T, Sy, Sx, H, W = shape
@@ -441,17 +446,31 @@ def _band_rows(shape, window_frames: int, halo, o: RunOptions, budget: int) -> i
         return H
     if o.band_rows is not None:
         return min(int(o.band_rows), H)
-    if step_memory(shape, window_frames) <= budget:
+
+    def need(rows=None):
+        return step_memory(shape, window_frames, rows, halo, itemsize=itemsize,
+                           strategy=strategy)
+
+    if need() <= budget:
         return H
-    per_row = window_frames * Sy * Sx * W * 8 * _BAND_FACTOR
-    rows = int((budget - _PROCESS) // per_row) - 2 * halo
-    if rows <= halo:
+    if need(halo + 1) > budget:
         raise UsageError(
             f"even a band of {halo + 1} rows (and the {halo} rows either side its estimate "
             f"reads) of {window_frames} frames of {Sy}x{Sx} views of {W} px needs about "
-            f"{step_memory(shape, window_frames, halo + 1, halo) / 2**30:.2f} GiB, more than "
-            f"the memory budget {budget / 2**30:.2f} GiB (--memory GIB)")
-    return rows
+            f"{need(halo + 1) / 2**30:.2f} GiB, more than the memory budget "
+            f"{budget / 2**30:.2f} GiB (--memory GIB)")
+    # the widest band that fits (the need grows with the rows)
+    lo, hi = halo + 1, H - 1
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        lo, hi = (mid, hi) if need(mid) <= budget else (lo, mid - 1)
+    return lo
+
+
+def _read_itemsize(source, strategy) -> int:
+    """Bytes a sample of the windows a step reads (estimate_step: float32 where the
+    source stores it and the strategy takes it)."""
+    return 4 if source.itemsize == 4 and getattr(strategy, "takes_float32", False) else 8
 
 
 def plan_run(source, strategy, o: RunOptions, sink) -> Plan:
@@ -462,7 +481,8 @@ def plan_run(source, strategy, o: RunOptions, sink) -> Plan:
                                                             len(frames) == 1)
     halo = strategy.halo
     n = max(hi - lo for lo, hi in windows)
-    rows = _band_rows(source.shape, n, halo, o, _budget(o.memory))
+    rows = _band_rows(source.shape, n, halo, o, _budget(o.memory),
+                      itemsize=_read_itemsize(source, strategy), strategy=strategy)
     H = source.shape[3]
     bands = tuple((r0, min(r0 + rows, H)) for r0 in range(0, H, rows))
     return Plan(source, strategy, frames, windows, bands, halo or 0, strategy.reach,
@@ -555,7 +575,7 @@ def estimate_step(plan: Plan, i: int, b: int, progress=None) -> tuple[dict, int]
     a0, a1 = (max(0, r0 - halo), min(H, r1 + halo)) if len(plan.bands) > 1 else (0, H)
     # float32 where the source stores it and the strategy takes it: half the memory and
     # no conversion, the same maps
-    stored = src.itemsize == 4 and getattr(plan.strategy, "takes_float32", False)
+    stored = _read_itemsize(src, plan.strategy) == 4
     window = src.read(lo, hi, rows=(a0, a1), dtype=np.float32 if stored else np.float64)
     try:
         mask = plan.strategy.step_mask(src, k)
@@ -574,6 +594,9 @@ def estimate_step(plan: Plan, i: int, b: int, progress=None) -> tuple[dict, int]
     if mask is not None:
         fix["mask"] = plan.strategy.mask if isinstance(plan.strategy.mask, str) else "given"
     return _crop(ests, slice(r0 - a0, r1 - a0), fix), stamp
+
+
+_OPENING = threading.Lock()
 
 
 @lru_cache(maxsize=4)
@@ -600,8 +623,11 @@ def run_step(job: dict, i: int, b: int) -> dict:
     except ImportError:
         pass
     t0 = time.perf_counter()
-    source, sink = _opened(job["source"], job["views"], json.dumps(job["sink"],
-                                                                    sort_keys=True))
+    # one opening per process: threads that start together must not each open their
+    # own (each would keep its own decoded frames)
+    with _OPENING:
+        source, sink = _opened(job["source"], job["views"], json.dumps(job["sink"],
+                                                                        sort_keys=True))
     source.cache_frames(job.get("cache_frames", 0))
     ests, stamp = estimate_step(replace(job["plan"], source=source), i, b)
     t1 = time.perf_counter()
@@ -618,7 +644,9 @@ def _local(plan: Plan, o: RunOptions) -> tuple[int, int, int]:
         raise UsageError(f"--workers must be a positive number, got {o.workers!r}")
     r0, r1 = plan.bands[0]
     frames = plan.window_frames
-    need = step_memory(plan.source.shape, frames, r1 - r0, plan.halo)
+    need = step_memory(plan.source.shape, frames, r1 - r0, plan.halo,
+                       itemsize=_read_itemsize(plan.source, plan.strategy),
+                       strategy=plan.strategy)
     if need > budget:
         T, Sy, Sx, H, W = plan.source.shape
         raise UsageError(f"a band of {r1 - r0} rows needs about {need / 2**30:.2f} GiB ("
@@ -629,23 +657,26 @@ def _local(plan: Plan, o: RunOptions) -> tuple[int, int, int]:
     return n, max(1, cores // n), budget
 
 
-def frame_cache(plan: Plan, tasks: int, budget: int | None = None) -> int:
+def frame_cache(plan: Plan, tasks: int, budget: int) -> int:
     """Decoded frames a worker keeps (:meth:`gridflow.volume.Source.cache_frames`) for
-    ``tasks`` steps at once: a window and one frame per further step, so that steps one
-    frame apart decode one frame each; none where steps are cut into row bands (memory is
-    short there), where steps do not share frames, or where the frames would not fit in
-    the ``budget`` bytes beside the steps' own (:func:`step_memory`)."""
+    ``tasks`` steps at once: a window and the frames the further steps reach beyond it,
+    so that steps one frame apart decode one frame each; none where steps are cut into
+    row bands (memory is short there), where steps do not share frames, or where the
+    frames would not fit in the ``budget`` bytes beside the steps' own
+    (:func:`step_memory`)."""
     if len(plan.bands) != 1 or len(plan.frames) < 2:
         return 0
     frames = plan.window_frames
-    if max(b - a for a, b in zip(plan.frames, plan.frames[1:])) >= frames:
+    every = max(b - a for a, b in zip(plan.frames, plan.frames[1:]))
+    if every >= frames:
         return 0
     T, Sy, Sx, H, W = plan.source.shape
-    n = frames + tasks - 1
-    if budget is not None:
-        need = tasks * step_memory(plan.source.shape, frames)
-        if need + n * Sy * Sx * H * W * plan.source.itemsize > budget:
-            return 0
+    n = frames + (tasks - 1) * every
+    need = tasks * step_memory(plan.source.shape, frames,
+                               itemsize=_read_itemsize(plan.source, plan.strategy),
+                               strategy=plan.strategy)
+    if need + n * Sy * Sx * H * W * plan.source.itemsize > budget:
+        return 0
     return n
 
 
@@ -811,11 +842,14 @@ def _run_tasks(plan: Plan, sink, todo, o: RunOptions, views, report: RunReport,
            "sink": sink.spec(), "plan": replace(plan, source=None), "threads": 1}
     if client is not None:
         where = f"the dask cluster at {o.connect}"
-        workers = client.scheduler_info()["workers"].values()
+        workers = list(client.scheduler_info()["workers"].values())
         n = sum(w.get("nthreads", 1) for w in workers)
-        # each worker process keeps its own frames (the cluster's memory is its own)
-        job["cache_frames"] = frame_cache(plan, max((w.get("nthreads", 1) for w in workers),
-                                                    default=1))
+        # each worker process keeps its own frames, where they fit its memory limit
+        # beside its threads' steps (none where a worker states no limit)
+        limits = [w.get("memory_limit") or 0 for w in workers]
+        job["cache_frames"] = (frame_cache(plan, max(w.get("nthreads", 1) for w in workers),
+                                           min(limits))
+                               if workers and all(limits) else 0)
     else:
         n, threads, budget = _local(plan, o)
         job["threads"] = threads
@@ -861,9 +895,17 @@ def _run_tasks(plan: Plan, sink, todo, o: RunOptions, views, report: RunReport,
                     if bar is not None:
                         bar.update(1)
 
-            tasks = [dask.delayed(run_step, pure=False)(job, i, b) for i, b in todo]
-            with Tick():
-                dask.compute(*tasks, scheduler="threads", num_workers=n)
+            # keys in step order: the threaded scheduler breaks ties between independent
+            # tasks by key, and random keys ran the steps in random order, so that a
+            # worker's kept frames (frame_cache) were mostly not those the next step reads
+            tasks = [dask.delayed(run_step, pure=False)(
+                job, i, b, dask_key_name=f"step-{i:09d}-{b:05d}") for i, b in todo]
+            try:
+                with Tick():
+                    dask.compute(*tasks, scheduler="threads", num_workers=n)
+            finally:
+                # the sources opened here keep decoded frames: not beyond the run
+                _opened.cache_clear()
     finally:
         if bar is not None:
             bar.close()

@@ -280,7 +280,7 @@ def test_a_step_over_the_memory_budget_runs_in_row_bands(recording, tmp_path, ca
     """With a budget one step's frames do not fit, the steps are cut into the widest row
     bands that fit (said before the run); a budget not even a minimal band fits is refused
     before anything is written."""
-    from gridflow.pipeline.run import step_memory
+    from gridflow.pipeline.run import RunOptions, choose_strategy, step_memory
     from gridflow.recording import MapStore
     from gridflow.sources import open_source
 
@@ -291,8 +291,16 @@ def test_a_step_over_the_memory_budget_runs_in_row_bands(recording, tmp_path, ca
     EST = [*globals()["EST"][:-1], "--growth-support", "0", "--no-progress"]
     # a budget that fits a 16-row band but not a whole step (at 64 px a band saves memory
     # only when it is narrow: the model charges a band more per byte of its window)
-    budget = (step_memory(rec.shape, 9, 16, halo) + 1024) / 2**30   # 1 KiB: the option's rounding
-    assert step_memory(rec.shape, 9) > budget * 2**30
+    strategy, _ = choose_strategy(rec, RunOptions(settings={
+        "sigma": 2.0, "window": 9, "motion": "affine", "temporal_radius": 2,
+        "growth_support": 0}))
+
+    def need(*rows):
+        # the run's own model: its settings, and the recording's float32 read as it is
+        return step_memory(rec.shape, 9, *rows, itemsize=4, strategy=strategy)
+
+    budget = (need(16, halo) + 1024) / 2**30   # 1 KiB: the option's rounding
+    assert need() > budget * 2**30
     out = tmp_path / "maps.zarr"
     assert main(["estimate", str(recording), "-o", str(out), "--every", "10",
                  "--memory", f"{budget:.9f}", "--workers", "1", *EST[:-1]]) == 0
@@ -300,7 +308,7 @@ def test_a_step_over_the_memory_budget_runs_in_row_bands(recording, tmp_path, ca
     store = MapStore.open(out)
     assert 1 < len(store.bands()) and store.done().all()
     assert "row bands of" in err and store.band_rows == 16
-    assert step_memory(rec.shape, 9, store.band_rows, halo) <= budget * 2**30
+    assert need(store.band_rows, halo) <= budget * 2**30 < need(store.band_rows + 1, halo)
     tiny = tmp_path / "tiny.zarr"
     assert main(["estimate", str(recording), "-o", str(tiny), "--memory", "0.0001",
                  *EST]) == 2
@@ -928,27 +936,56 @@ def test_a_non_finite_frame_is_named_whether_frames_are_kept_or_not(recording, t
 def test_float32_windows_and_kept_frames_give_the_same_store(recording, tmp_path,
                                                              monkeypatch):
     """The pipeline reads a float32 recording as float32 and keeps decoded frames for
-    the next steps: its store equals, array for array, one read as float64 with no frame
-    kept (the estimator's arithmetic is float64 either way)."""
+    the next steps, which it runs in order: 9 steps one frame apart with a 17-frame
+    window decode 17 + 8 frames one step at a time (at most 17 + 2 x 8 two at once,
+    measured 25; in random order about 90), and the store equals, array for array, one read as
+    float64 with no frame kept (the estimator's arithmetic is float64 either way)."""
     from gridflow.pipeline import run as run_mod
     from gridflow.pipeline import strategies
+    from gridflow.recording import _ZarrReader
 
     settings = {"sigma": 2.0, "window": 9}
-    fast, plain = tmp_path / "fast.zarr", tmp_path / "plain.zarr"
-    reads = []
+    decoded, dtypes = [], []
+    check = _ZarrReader._check_finite
+
+    def counting(self, out, start):
+        if out.ndim == 4:                       # one frame, decoded for the cache
+            decoded.append(start)
+        return check(self, out, start)
+
+    monkeypatch.setattr(_ZarrReader, "_check_finite", counting)
     real = run_mod.estimate_step
 
     def spy(plan, i, b, progress=None):
-        out = real(plan, i, b, progress)
-        reads.append(len(plan.source._reader._cache))
-        return out
+        read = plan.source.read
+
+        def typed(*a, **k):
+            out = read(*a, **k)
+            dtypes.append(out.dtype)
+            return out
+
+        plan.source.read = typed
+        return real(plan, i, b, progress)
 
     monkeypatch.setattr(run_mod, "estimate_step", spy)
-    run_series(recording, fast, every=1, settings=settings, first=12, last=20, workers=1)
-    # frames were kept: a window (17 frames at the affine default) and no more
-    assert max(reads) == 17, reads
+    stores = {}
+    for workers in (1, 2):
+        decoded.clear()
+        stores[workers] = tmp_path / f"fast{workers}.zarr"
+        run_series(recording, stores[workers], every=1, settings=settings, first=12,
+                   last=20, workers=workers)
+        assert sorted(set(decoded)) == list(range(4, 29)), decoded
+        if workers == 1:
+            assert len(decoded) == 17 + 8, decoded
+        else:
+            assert len(decoded) <= 17 + 2 * 8, (decoded, len(decoded))
+    assert set(dtypes) == {np.dtype(np.float32)}
+    plain = tmp_path / "plain.zarr"
     monkeypatch.setattr(strategies.SinglePass, "takes_float32", False)
     monkeypatch.setattr(run_mod, "frame_cache", lambda *a, **k: 0)
-    run_mod._opened.cache_clear()
+    dtypes.clear()
+    decoded.clear()
     run_series(recording, plain, every=1, settings=settings, first=12, last=20, workers=1)
-    assert same_arrays(store_arrays(fast), store_arrays(plain))
+    assert set(dtypes) == {np.dtype(np.float64)} and not decoded
+    assert same_arrays(store_arrays(stores[1]), store_arrays(plain))
+    assert same_arrays(store_arrays(stores[2]), store_arrays(plain))

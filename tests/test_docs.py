@@ -478,3 +478,22 @@ def test_leaderboard_block_agrees_with_its_csv_and_its_suites():
     stored = rank[rank.suite == "leaderboard_growth"].reset_index(drop=True)
     assert list(fresh["entry"]) == list(stored["entry"])
     np.testing.assert_allclose(fresh["median_q"], stored["median_q"], rtol=1e-5)
+
+
+def test_the_readmes_planner_numbers_are_the_planners():
+    """README's memory the planner counts for a step of 5 x 5 views of 512^2 px (a
+    recording: float32, read as stored; the default window of each motion model) is what
+    pipeline.run.step_memory gives, to the two decimals printed."""
+    from gridflow.estimator import temporal_reach
+    from gridflow.pipeline.run import step_memory
+    from gridflow.pipeline.strategies import SinglePass
+
+    text = " ".join((ROOT / "README.md").read_text().split())
+    m = re.search(r"([\d.]+) GiB for one step of 5 × 5 views of 512² px under translation, "
+                  r"([\d.]+) GiB under the affine model", text)
+    assert m, "the planner's sentence is gone from README.md"
+    for motion, stated in zip(("translation", "affine"), m.groups()):
+        s = SinglePass(("full",), {"motion": motion})
+        frames = 2 * temporal_reach(s.estimator_settings) + 1
+        need = step_memory((200, 5, 5, 512, 512), frames, itemsize=4, strategy=s)
+        assert f"{need / 2**30:.2f}" == stated, (motion, need / 2**30, stated)

@@ -414,7 +414,13 @@ def step_memory(shape, window_frames: int, rows: int | None = None, halo: int = 
     settings = getattr(strategy, "estimator_settings", None)
     models = getattr(strategy, "models", ("full",))
     method = settings.method if settings is not None else "fast"
-    est = estimate_memory((window_frames, Sy, Sx, r, W), settings, models, method)
+    try:
+        est = estimate_memory((window_frames, Sy, Sx, r, W), settings, models, method)
+    except ValueError:
+        # models this input cannot take (a light field of one frame given --model full):
+        # the estimator refuses them with its own message when the step runs; planned here
+        # as the model every input takes
+        est = estimate_memory((window_frames, Sy, Sx, r, W), None, ("bcc",), method)
     window = window_frames * Sy * Sx * r * W * itemsize
     return int(_PROCESS + window + est + (Sy * Sx * H * W * itemsize if banded else 0))
 

@@ -214,7 +214,9 @@ def test_a_signal_at_random_times_during_generate_hci_leaves_no_partial_scene(tm
     """``gridflow generate --hci FOLDER`` (a folder output: 25 views and the truth) sent
     SIGTERM or SIGINT at a random time from its start to a quarter past its measured end,
     30 times, each onto a new name: every time the folder is absent or a whole scene that
-    loads, and nothing else is beside it (no temporary folder)."""
+    loads, and nothing else is beside it (no temporary folder).  An absent folder comes
+    with exit 130/143 (gridflow's handlers), or with Python's own status 1 where a SIGINT
+    fell into the interpreter's start-up, before gridflow's code runs."""
     from gridflow.hci import load_hci
 
     def command(folder):
@@ -227,7 +229,7 @@ def test_a_signal_at_random_times_during_generate_hci_leaves_no_partial_scene(tm
     duration = time.monotonic() - t0
     whole = sorted(p.name for p in (tmp_path / "first").iterdir())
     rng = np.random.default_rng(2026)
-    seen = {"absent": 0, "whole": 0}
+    seen = {"absent": 0, "whole": 0, "start-up": 0}
     for trial in range(HCI_SIGNAL_TRIALS):
         folder = tmp_path / f"s{trial}"
         sig = (signal.SIGTERM, signal.SIGINT)[trial % 2]
@@ -242,6 +244,12 @@ def test_a_signal_at_random_times_during_generate_hci_leaves_no_partial_scene(tm
             assert sorted(q.name for q in folder.iterdir()) == whole, (trial, err)
             assert load_hci(folder).volume.shape == (1, 5, 5, 256, 256)
             seen["whole"] += 1
+        elif (sig == signal.SIGINT and p.returncode == 1 and "KeyboardInterrupt" in err
+              and "gridflow" not in err):
+            # the SIGINT landed in the interpreter's own start-up (CI's machine: "Could not
+            # import runpy module", a traceback of importlib's frames only), before any of
+            # gridflow's code could handle it: Python's exit status, and nothing written
+            seen["start-up"] += 1
         else:
             assert p.returncode in (130, 143, -sig), (trial, p.returncode, err)
             seen["absent"] += 1

@@ -33,7 +33,59 @@ from .volume import GridVolume
 __all__ = ["save_volume", "load_volume", "save_estimate", "save_estimates", "load_estimate",
            "load_npz_maps",
            "atomic_write", "atomic_write_set", "check_output", "OutputError",
-           "check_input_file"]
+           "check_input_file", "remove_temporaries"]
+
+
+# Every temporary file or folder this process has made and not yet renamed or removed,
+# keyed by the process that made it (a forked child inherits the set but not the files).
+# A writer removes its own on failure, but one spot cannot be guarded from inside: a
+# signal acted on as ``__exit__`` starts (CPython looks for signals at a function's
+# start), before its try.  The CLI's interrupt handler, and atexit, remove what is left.
+_LIVE: dict[str, tuple] = {}        # name: (pid, its open file or None)
+
+
+def _keep(path, fh=None) -> None:
+    _LIVE[str(path)] = (os.getpid(), fh)
+
+
+def _drop(path) -> None:
+    _LIVE.pop(str(path), None)
+
+
+def remove_temporaries() -> list[str]:
+    """Remove every temporary file and folder this process's atomic writers made and did
+    not rename or remove (an interrupt at a moment no writer can guard); the targets are
+    untouched.  Returns the names removed."""
+    import shutil
+
+    removed = []
+    for path, (pid, fh) in list(_LIVE.items()):
+        if pid != os.getpid():
+            continue
+        _drop(path)
+        if fh is not None:
+            try:
+                fh.close()
+            except OSError:         # a failed flush: the file is removed anyway
+                pass
+        try:
+            if os.path.isdir(path) and not os.path.islink(path):
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                os.unlink(path)
+            removed.append(path)
+        except FileNotFoundError:
+            pass
+    return removed
+
+
+def _register_atexit() -> None:
+    import atexit
+
+    atexit.register(remove_temporaries)
+
+
+_register_atexit()
 
 
 class OutputError(GridflowError):
@@ -212,15 +264,19 @@ class atomic_write:
                 fd, tmp = tempfile.mkstemp(prefix=temp_prefix(self.path), suffix=".tmp",
                                            dir=self.path.parent)
                 self.tmp = tmp
+                _keep(tmp)
                 try:
                     self.fh = os.fdopen(fd, self.mode)
                 except BaseException:
                     os.close(fd)
                     raise
+                _keep(tmp, self.fh)
+            # returned inside the try: an interrupt on the way out of __enter__ has no
+            # __exit__ to remove the temporary
+            return self.fh
         except BaseException:
             self.discard()
             raise
-        return self.fh
 
     def discard(self) -> None:
         """Close and remove the temporary file, if there is one; ``path`` is untouched."""
@@ -238,11 +294,12 @@ class atomic_write:
                 # mkstemp makes the file private (0600); give it the usual umask permissions
                 os.chmod(self.tmp, 0o666 & ~current_umask())
                 os.replace(self.tmp, self.path)
+                _drop(self.tmp)
                 return False
         except BaseException:
-            _unlink(self.tmp)
+            self.discard()          # closes the file too, if the interrupt came first
             raise
-        _unlink(self.tmp)
+        self.discard()
         return False
 
 
@@ -251,6 +308,7 @@ def _unlink(path) -> None:
         os.unlink(path)
     except FileNotFoundError:
         pass
+    _drop(path)
 
 
 def save_volume(path, data: GridVolume, *, compress: bool = False) -> None:
@@ -403,10 +461,12 @@ class atomic_write_set:
         try:
             for w in self.writers:
                 w.__enter__()
+            # built and returned inside the try: an interrupt while the handles are
+            # gathered (CI met one) has no __exit__ to remove the temporaries
+            return [w.fh for w in self.writers]
         except BaseException:
             self._discard()
             raise
-        return [w.fh for w in self.writers]
 
     def _discard(self):
         # every writer whose temporary file exists, also one a signal hit right after its
@@ -429,24 +489,23 @@ class atomic_write_set:
         try:
             for w in self.writers:
                 w.fh.close()
-        except BaseException:
-            self._discard()
-            raise
-        fd = os.open(self.writers[0].path.parent, os.O_RDONLY)
-        try:
             # an interrupt between two renames would leave a set of outputs from two
-            # runs: SIGINT and SIGTERM wait until the renames are done
+            # runs, and one between opening the lock's folder and closing it would keep
+            # the lock for the process's life: SIGINT and SIGTERM wait until both are done
             with signals_deferred():
-                fcntl.flock(fd, fcntl.LOCK_EX)
-                mode = 0o666 & ~current_umask()
-                for w in self.writers:
-                    os.chmod(w.tmp, mode)
-                    os.replace(w.tmp, w.path)
+                fd = os.open(self.writers[0].path.parent, os.O_RDONLY)
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX)
+                    mode = 0o666 & ~current_umask()
+                    for w in self.writers:
+                        os.chmod(w.tmp, mode)
+                        os.replace(w.tmp, w.path)
+                        _drop(w.tmp)
+                finally:
+                    os.close(fd)            # releases the lock
         except BaseException:
             self._discard()
             raise
-        finally:
-            os.close(fd)            # releases the lock
         return False
 
 
@@ -467,12 +526,15 @@ def folder_beside(path):
         with signals_deferred():
             tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(path), suffix=".tmp",
                                         dir=path.parent))
+            _keep(tmp)
         # mkdtemp's folder is the owner's alone
         os.chmod(tmp, 0o777 & ~current_umask())
         yield tmp
     finally:
-        if tmp is not None and tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
+        if tmp is not None:
+            if tmp.exists():
+                shutil.rmtree(tmp, ignore_errors=True)
+            _drop(tmp)
 
 
 @contextmanager

@@ -107,6 +107,11 @@ def main(argv=None) -> int:
         print(f"gridflow {a.command}: error: {exc}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, Terminated) as exc:
+        from gridflow.io import remove_temporaries
+
+        # a writer removes its temporary itself, except when the signal is acted on as its
+        # __exit__ starts (see gridflow.io.remove_temporaries)
+        remove_temporaries()
         _quiet_io_loop()
         name = "SIGTERM" if isinstance(exc, Terminated) else "SIGINT"
         print(f"gridflow {a.command}: interrupted ({name}); outputs already written are "

@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -147,8 +148,6 @@ def open_recording_store(path) -> Source:
 
 class _ZarrReader:
     def __init__(self, path: Path, group):
-        import threading
-
         self.path, self.group = path, group
         self.volume = group["volume"]
         vol = self.volume
@@ -179,20 +178,13 @@ class _ZarrReader:
                 del self._cache[next(iter(self._cache))]    # the first kept
 
     def _signature(self, frame: int) -> tuple:
-        out = []
-        for key in self.chunk_keys(frame):
-            try:
-                st = (self.path / "volume" / key).stat()
-                out.append((key, st.st_size, st.st_mtime_ns))
-            except FileNotFoundError:
-                out.append((key, None, None))
-        return tuple(out)
+        from .volume import file_states
+
+        return tuple(file_states(self.files(frame, frame + 1)))
 
     def _frame(self, t: int) -> np.ndarray:
         """Frame ``t`` decoded and checked, from the cache where it is still current; a
         frame another thread is decoding is waited for, not decoded twice."""
-        import threading
-
         sig = self._signature(t)
         while True:
             with self._lock:

@@ -102,6 +102,20 @@ class GridVolume:
                               self.meta.get("units") or "world units")
 
 
+
+def file_states(paths) -> list[tuple]:
+    """``(path, size, mtime_ns)`` of each file, ``(path, None, None)`` for one missing:
+    what a stored frame's "has it changed" checks compare (reading every byte is not an
+    option)."""
+    out = []
+    for p in paths:
+        try:
+            st = p.stat()
+            out.append((p, st.st_size, st.st_mtime_ns))
+        except FileNotFoundError:
+            out.append((p, None, None))
+    return out
+
 class SourceError(FileFormatError):
     """An input that no backend opens, or that its backend refuses; names the path."""
 
@@ -314,12 +328,11 @@ class Source:
         import hashlib
 
         h = hashlib.sha1()
-        for p in self._reader.files(start, stop):
-            try:
-                st = p.stat()
-                h.update(f"{p.name}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
-            except FileNotFoundError:
+        for p, size, mtime in file_states(self._reader.files(start, stop)):
+            if size is None:
                 h.update(f"{p.name}\0missing\n".encode())
+            else:
+                h.update(f"{p.name}\0{size}\0{mtime}\n".encode())
         return int.from_bytes(h.digest()[:8], "little") >> 1
 
     def load(self) -> GridVolume:

@@ -208,6 +208,14 @@ def band_rows(backend, W: int, n_ext: int, n_out: int, n_signals: int, frames: i
     return max(16, int((budget - fixed) // per_row))
 
 
+def _equal_bands(most: int, H: int, halo: int) -> tuple[int, int]:
+    """Rows per band when bands of at most ``most`` rows cover the ``H - 2 halo`` inner
+    rows in equal heights (a last band of a few rows would cost its halo's transforms
+    for little), and the inner rows."""
+    inner = max(1, H - 2 * halo)
+    return -(-inner // -(-inner // most)), inner
+
+
 # Bytes per image pixel that an estimate holds besides its bands (its maps, the affine
 # model's pooling inputs, the solver's per-pixel results and the signals' intermediates),
 # and the factor on the band model, of estimate_memory: an upper envelope of the peaks
@@ -247,10 +255,8 @@ def estimate_memory(shape, settings: EstimatorSettings | None = None,
     n_signals = 6 + len({ZOOM_ROW_SIGNALS[r][0] for r in ext[len(rows):]})
     halo = window_halo(s)
     packed = method == "fast"
-    inner = max(1, H - 2 * halo)
     per_row, fixed = _band_model(packed, W, len(ext), len(rows), n_signals, T, halo)
-    most = max(16, int((BAND_BYTES - fixed) // per_row))
-    band = -(-inner // -(-inner // most))
+    band, inner = _equal_bands(max(16, int((BAND_BYTES - fixed) // per_row)), H, halo)
     return int(_BAND_MARGIN * (fixed + min(band, inner) * per_row) + _MAP_BYTES * H * W)
 
 
@@ -479,12 +485,9 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     splan = plan.signal_plan(extra)
     band = s.band_rows
     if band is None:
-        # as many bands as the budget asks, of equal height (a last band of a few rows
-        # would cost its halo's transforms for little)
-        most = band_rows(backend, W, n, len(rows), 6 + len(extra), len(plan.frames), halo,
-                         BAND_BYTES)
-        inner = max(1, H - 2 * halo)
-        band = -(-inner // -(-inner // most))
+        # as many bands as the budget asks, of equal height
+        band, _ = _equal_bands(band_rows(backend, W, n, len(rows), 6 + len(extra),
+                                         len(plan.frames), halo, BAND_BYTES), H, halo)
     tplan = TensorPlan(tvals=plan.frames - plan.k_ref, rows=ext,
                        kernels=gaussian_moment_kernels(s.sigma, s.window),
                        radius=s.window // 2, spatial_radius=plan.spatial.radius,

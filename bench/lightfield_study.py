@@ -1,6 +1,7 @@
 """Depth from a static light field, step by step: what each step of the default adds.
 
-    python -m gridflow.bench.lightfield_study                  # the table in bench/README.md
+    python -m gridflow.bench.lightfield_study                  # the tables
+    python -m gridflow.bench.lightfield_study --write-doc bench/README.md   # ... into it
     python -m gridflow.bench.lightfield_study --hci SCENE      # also an HCI scene of yours
 
 Each row adds one step to the one above it, up to the default of ``gridflow estimate``
@@ -12,7 +13,10 @@ estimates from the data, each pixel's estimate chosen among 1-D camera sub-grids
 median of the disparity.  A last row tries the whole row and column instead of
 segments (not in the default: worse between thin stripes).  Scenes: two synthetic
 two-layer scenes of exact disparity (bands 10 px high with 12 px gaps, and thin stripes
-with 8 px gaps, 9 x 9 views, 192^2, foreground and background 2 px per view apart), the
+with 8 px gaps, 9 x 9 views, 192^2, foreground and background 2 px per view apart), a
+smooth wall (60 % of the image, faintly shaded, at +1 px per view) in front of a plane
+slanted from -3 to +2.4 px per view (9 x 9 views, 256^2, 8 bit, noise of 4 grey
+levels), the
 POV-Ray cube as a 5 x 5 light field (-0.6 .. 3.0 px per view; rendered once into
 ``--cache``), and any HCI scene given.  Scores: the HCI benchmark's MSE x 100 and
 BadPix(0.07) by its toolkit's rule (:func:`gridflow.metrics.hci_metrics`), the
@@ -32,7 +36,7 @@ from gridflow.metrics import hci_metrics
 from gridflow.estimator import estimate
 from gridflow.estimator.lightfield import estimate_refocused, estimate_shear_range
 
-__all__ = ["STEPS", "synthetic_scenes", "run_step", "study", "main"]
+__all__ = ["STEPS", "synthetic_scenes", "run_step", "study", "tables", "main"]
 
 # (label, how): None is the single pass; else estimate_refocused's keywords
 STEPS = [
@@ -46,15 +50,18 @@ STEPS = [
 
 
 def synthetic_scenes() -> dict:
-    """``{name: (views (9, 9, 192, 192), disparity (192, 192))}``: the two-layer scenes."""
-    from gridflow.generators.lightfield import layered_views
+    """``{name: (views (9, 9, S, S), disparity (S, S))}``: the two-layer scenes (S = 192)
+    and a smooth wall in front of a slanted textured plane (S = 256, 8-bit, sensor noise
+    of 4 grey levels)."""
+    from gridflow.generators.lightfield import layered_views, smooth_wall_views
 
     bands = [(y, y + 10) for y in range(20, 170, 22)]
     stripes = [(y, y + 8) for y in range(20, 172, 16)]
     return {"two layers": layered_views(n=9, size=192, d_fg=0.6, d_bg=-1.4, bands=bands,
                                         seed=3),
             "thin stripes": layered_views(n=9, size=192, d_fg=0.5, d_bg=-1.5,
-                                          bands=stripes, seed=4)}
+                                          bands=stripes, seed=4),
+            "smooth wall": smooth_wall_views(n=9, size=256, shading=0.02, noise=4 / 255)}
 
 
 def run_step(views: np.ndarray, how, shears) -> tuple[np.ndarray, float]:
@@ -73,16 +80,29 @@ def run_step(views: np.ndarray, how, shears) -> tuple[np.ndarray, float]:
     return d, time.perf_counter() - t0
 
 
-def study(scenes: dict, progress=print) -> list[dict]:
-    """One row per scene and step: ``scene, step, mse_x100, badpix_007, no_value_pct,
-    seconds``, and the shears found."""
-    rows = []
+def study(scenes: dict, progress=print) -> tuple[list[dict], list[dict]]:
+    """The step-by-step table and the coarse ranges.
+
+    Returns
+    -------
+    rows : list of dict
+        One per scene and step: ``scene, step, mse_x100, badpix_007, no_value_pct,
+        seconds``.
+    ranges : list of dict
+        One per scene: ``scene, true_lo, true_hi`` (px per view), the coarse pass's
+        ``lo, hi``, its level ``k`` and the ``shears`` it gives.
+    """
+    rows, ranges = [], []
     for name, (views, truth) in scenes.items():
         shears, info = estimate_shear_range(views)
         fin = truth[np.isfinite(truth)]
+        ranges.append({"scene": name, "true_lo": float(fin.min()), "true_hi": float(fin.max()),
+                       "lo": info["lo"], "hi": info["hi"], "k": info["k"],
+                       "shears": (shears[0], shears[-1])})
         progress(f"{name}: {views.shape[0]}x{views.shape[1]} views of {views.shape[-1]}^2, "
                  f"true disparity {fin.min():.2f} .. {fin.max():.2f}, coarse pass "
-                 f"{info['lo']:.2f} .. {info['hi']:.2f} -> shears {shears[0]} .. {shears[-1]}")
+                 f"{info['lo']:.2f} .. {info['hi']:.2f} (at 1/{info['k']} resolution) -> "
+                 f"shears {shears[0]} .. {shears[-1]}")
         for label, how in STEPS:
             d, secs = run_step(views, how, shears)
             m = hci_metrics(d, truth)
@@ -90,7 +110,23 @@ def study(scenes: dict, progress=print) -> list[dict]:
                          "badpix_007": m["badpix_007"],
                          "no_value_pct": 100.0 * m["n_nonfinite"] / max(m["n_pixels"], 1),
                          "seconds": secs})
-    return rows
+    return rows, ranges
+
+
+def tables(rows: list[dict], ranges: list[dict]) -> str:
+    """The ranges and the step-by-step table, markdown."""
+    out = ["| scene | true disparity, px per view | coarse pass | at resolution | shears |",
+           "|---|---|---|---|---|"]
+    for r in ranges:
+        out.append(f"| {r['scene']} | {r['true_lo']:.2f} … {r['true_hi']:.2f} | "
+                   f"{r['lo']:.2f} … {r['hi']:.2f} | 1/{r['k']} | "
+                   f"{r['shears'][0]} … {r['shears'][1]} |")
+    out += ["", "| scene | step | MSE × 100 | BadPix(0.07) % | no value % | s |",
+            "|---|---|---|---|---|---|"]
+    for r in rows:
+        out.append(f"| {r['scene']} | {r['step']} | {r['mse_x100']:.3f} | "
+                   f"{r['badpix_007']:.2f} | {r['no_value_pct']:.2f} | {r['seconds']:.1f} |")
+    return "\n".join(out)
 
 
 def main(argv=None) -> int:
@@ -99,7 +135,17 @@ def main(argv=None) -> int:
     ap.add_argument("--cache", default=RENDER_CACHE,
                     help=f"where the cube light field is rendered (default {RENDER_CACHE})")
     ap.add_argument("--no-cube", action="store_true", help="leave out the POV-Ray cube")
+    ap.add_argument("--write-doc", default=None, metavar="MD",
+                    help="rewrite the light-field block of this markdown file "
+                         "(bench/README.md) with the tables; refused with --hci (an HCI "
+                         "scene's numbers are not committed)")
     a = ap.parse_args(argv)
+    if a.write_doc and a.hci:
+        ap.error("--write-doc with --hci: the documentation holds no HCI scene's numbers")
+    if a.write_doc:
+        from gridflow.io import check_output
+
+        check_output(a.write_doc, suffixes=(".md",), what="--write-doc")
     scenes = synthetic_scenes()
     if not a.no_cube:
         from gridflow.scenes.render import render_cube_lightfield
@@ -112,12 +158,19 @@ def main(argv=None) -> int:
 
         data = load_hci(path)
         scenes[str(path)] = (data.volume[0], data.truth["disparity"])
-    rows = study(scenes)
-    print("| scene | step | MSE x 100 | BadPix(0.07) % | no value % | s |")
-    print("|---|---|---|---|---|---|")
-    for r in rows:
-        print(f"| {r['scene']} | {r['step']} | {r['mse_x100']:.3f} | {r['badpix_007']:.2f} | "
-              f"{r['no_value_pct']:.2f} | {r['seconds']:.1f} |")
+    rows, ranges = study(scenes)
+    text = tables(rows, ranges)
+    print(text)
+    if a.write_doc:
+        from .markdown import rewrite_block
+
+        cmd = "python -m gridflow.bench.lightfield_study --write-doc bench/README.md"
+        if a.no_cube:
+            cmd += " --no-cube"
+        rewrite_block(a.write_doc, "lightfield-study",
+                      f"Generated by `{cmd}` (seconds: this machine, 2 cores, one run):"
+                      f"\n\n{text}")
+        print(f"rewrote the lightfield-study block of {a.write_doc}")
     return 0
 
 

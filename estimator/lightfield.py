@@ -102,8 +102,17 @@ def estimate_shear_range(views: np.ndarray, *, filters: str = DEFAULTS["filters"
     stay within that reach there, and kept unless its own go far beyond it (over twice
     the reach: the estimator has failed there): the range comes from the finest level
     that resolves it (the finer the level, the less a low-pass mixes thin structures
-    with what lies behind them).  Estimates beyond twice the reach (an occlusion edge,
-    aliasing) do not count.
+    with what lies behind them).
+
+    Only confirmed estimates count: the same estimator on the centre row of views alone
+    and on the centre column alone must agree with the grid's estimate and with each
+    other, pixel by pixel and as an RMS over the window, within a quarter of the filters'
+    reach (:data:`_AGREE`).  In a smooth or texture-poor region the data do not fix the
+    disparity and the two disagree (noise, the aperture problem); near an occluding edge
+    and on aliased texture the row and the column see different things.  Without this
+    a large smooth wall's estimates, within the filters' reach but anywhere in it, set
+    the range's tails (shears -12 .. 14 for a scene of -3 .. 2.4 px per view;
+    ``tests/test_lightfield.py``).
 
     Parameters
     ----------
@@ -112,17 +121,18 @@ def estimate_shear_range(views: np.ndarray, *, filters: str = DEFAULTS["filters"
     filters : str
         Derivative filters of the coarse pass.
     coverage : float
-        The range spans the central ``100 - coverage`` per cent of the coarse disparities
-        (``coverage / 2`` per cent left out at each end: single wild pixels do not widen
-        it).
+        The range spans the central ``100 - coverage`` per cent of the confirmed coarse
+        disparities (``coverage / 2`` per cent left out at each end: single wild pixels
+        do not widen it).
 
     Returns
     -------
     shears : tuple of int
         ``floor(lo) .. ceil(hi)``, as for a stated range (:func:`stated_shears`).
     info : dict
-        ``lo``, ``hi`` (the coarse disparities' percentiles, px per view), ``k`` (the
-        decimation used) and ``levels`` (each level tried: k, lo, hi).
+        ``lo``, ``hi`` (the confirmed coarse disparities' percentiles, px per view),
+        ``k`` (the decimation used) and ``levels`` (each level tried: k, lo, hi, and
+        the fraction of its estimated pixels confirmed).
     """
     v = np.asarray(views, dtype=np.float64)
     if v.ndim != 4 or v.shape[0] != v.shape[1] or v.shape[0] % 2 == 0:
@@ -138,15 +148,14 @@ def estimate_shear_range(views: np.ndarray, *, filters: str = DEFAULTS["filters"
     chosen = None
     for k in ks:
         vk = v if k == 1 else _lowpass(v, 0.5 * k)[..., k // 2::k, k // 2::k]
-        e = _bcc(np.ascontiguousarray(vk)[None], sigma=1.0, window=5, filters=filters)
-        d = e["disparity"][e.interior]
-        # beyond twice the filters' reach the estimator has failed (an occlusion edge,
-        # aliasing), not seen a disparity
-        d = d[np.isfinite(d) & (np.abs(d) <= 2 * _REACH)]
+        d, confirmed = _confirmed(np.ascontiguousarray(vk), filters)
+        estimated = int(np.isfinite(d).sum())
+        d = d[confirmed]
         if d.size < 16:
+            levels.append((k, None, None, d.size / max(estimated, 1)))
             continue
         lo, hi = (float(q) * k for q in np.percentile(d, [coverage / 2, 100 - coverage / 2]))
-        levels.append((k, lo, hi))
+        levels.append((k, lo, hi, d.size / max(estimated, 1)))
         if chosen is not None and max(abs(lo), abs(hi)) / k > 2 * _REACH:
             # far beyond this level's filters (aliasing, the texture lost in the
             # decimation): the coarser level's range stands
@@ -155,15 +164,53 @@ def estimate_shear_range(views: np.ndarray, *, filters: str = DEFAULTS["filters"
         if max(abs(lo), abs(hi)) / (k / 2) > _REACH:
             break           # the next finer level would not follow these disparities
     if chosen is None:
-        raise InputError(f"views of {H}x{W} px: too few pixels for a coarse disparity "
-                         "pass; state the range (shears MIN MAX)")
+        raise InputError(f"views of {H}x{W} px: too few pixels with a confirmed coarse "
+                         "disparity (texture the row and the column of views agree on); "
+                         "state the range (shears MIN MAX)")
     k, lo, hi = chosen
     shears = tuple(range(int(np.floor(lo)), int(np.ceil(hi)) + 1))
     return shears, {"lo": lo, "hi": hi, "k": k, "levels": levels}
 
 
+def _confirmed(vk: np.ndarray, filters: str) -> tuple[np.ndarray, np.ndarray]:
+    """The coarse pass at one level, views ``vk`` of shape (m, m, h, w): the grid's
+    disparity (h, w) and where it is confirmed (bool, (h, w)): within twice the filters'
+    reach (beyond, the estimator has failed: an occlusion edge, aliasing), and the
+    centre row's and centre column's own estimates agree with it and with each other
+    within :data:`_AGREE` at the pixel and as an RMS over a Gaussian of the window's
+    sigma (a lucky agreement at one pixel of a noisy region does not count)."""
+    from scipy.ndimage import correlate1d
+
+    m = vk.shape[0]
+    cc = m // 2
+    kw = dict(sigma=1.0, window=5, filters=filters)
+    e = _bcc(vk[None], **kw)
+    d = e["disparity"]
+    d_row = _bcc(np.ascontiguousarray(vk[cc:cc + 1])[None], **kw)["disparity"]
+    # a column as a row of the transposed images (the HCI sign carries over)
+    d_col = _bcc(np.ascontiguousarray(vk[:, cc:cc + 1].transpose(1, 0, 3, 2))[None],
+                 **kw)["disparity"].T
+    ok = e.interior & np.isfinite(d) & np.isfinite(d_row) & np.isfinite(d_col)
+    g = gaussian_taps(1.0, 3)
+
+    def smooth(a):
+        return correlate1d(correlate1d(a, g, axis=0, mode="nearest"), g, axis=1,
+                           mode="nearest")
+    with np.errstate(invalid="ignore"):
+        sq = np.where(ok, (d_row - d_col) ** 2, 0.0)
+        rms = np.sqrt(smooth(sq) / np.maximum(smooth(ok.astype(float)), 1e-12))
+        confirmed = (ok & (np.abs(d) <= 2 * _REACH) & (rms <= _AGREE)
+                     & (np.abs(d - d_row) <= _AGREE) & (np.abs(d - d_col) <= _AGREE))
+    return d, confirmed
+
+
 # the disparity (px per view) the coarse pass's camera filters follow
 _REACH = 1.0
+# how closely (px per view, at the level's scale) the row's, the column's and the grid's
+# coarse estimates must agree for a pixel to count towards the range: a quarter of the
+# filters' reach, well above the scatter of textured pixels (0.1 or less on the smooth-wall
+# scenes of tests/test_lightfield.py) and well below that of texture-poor ones (~1)
+_AGREE = 0.25 * _REACH
 
 # The refocused estimates read the data rows without the zoom-blur correction
 # (docs/model.md): with the light fields' 1-px windows it made BadPix(0.07) worse on the

@@ -1,4 +1,5 @@
-"""Static light fields with exact disparity: textured planes and two-layer scenes.
+"""Static light fields with exact disparity: textured planes, two-layer scenes and a
+smooth wall in front of a slanted textured plane.
 
 Each view is sampled from an analytic texture at the position its ray meets the surface
 (no interpolation, no noise), in the HCI convention: a centre-view pixel of disparity
@@ -10,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["plane_views", "layered_views"]
+__all__ = ["plane_views", "layered_views", "smooth_wall_views"]
 
 
 def _texture(rng, mean: float, amp: float, freq: float, terms: int = 6):
@@ -102,3 +103,69 @@ def layered_views(n: int = 9, size: int = 96, d_fg: float = 0.5, d_bg: float = -
             views[r, c] = np.where(in_band(yf), fg(x + d_fg * dc, yf),
                                    bg(x + d_bg * dc, y + d_bg * dr))
     return views, np.where(in_band(y), d_fg, d_bg)
+
+
+def smooth_wall_views(n: int = 9, size: int = 256, d_range=(-3.0, 2.4), d_wall: float = 1.0,
+                      wall=(0.15, 0.95, 0.2, 0.95), shading: float = 0.0,
+                      wavelength: float = 120.0, noise: float = 0.0, bits: int | None = 8,
+                      seed: int = 0):
+    """A smooth wall in front of a textured plane slanted in x, as on HCI scenes with large
+    texture-poor regions: a rectangle of disparity ``d_wall`` shaded by at most
+    ``shading`` (a product of sinusoids of ``wavelength`` px; 0: uniform), occluding the
+    plane, whose disparity runs linearly from ``d_range[0]`` (left edge) to ``d_range[1]``
+    (right edge).  Exact occlusion; optional Gaussian sensor noise, then quantisation to
+    ``bits`` bits, as an 8-bit camera's images.
+
+    Parameters
+    ----------
+    n, size : int
+        Views per side (odd) and image side (px).
+    d_range : (float, float)
+        The plane's disparity at the left and the right edge (px per camera step).
+    d_wall : float
+        The wall's disparity.
+    wall : (float, float, float, float)
+        The wall's rows and columns in the centre view, ``(y0, y1, x0, x1)`` as fractions
+        of the image side.
+    shading, wavelength : float
+        The wall's intensity variation (0.6 +- shading) and its wavelength (px).
+    noise : float
+        Standard deviation of Gaussian noise added to every view (intensities 0..1).
+    bits : int or None
+        Quantise to this many bits (None: not at all).
+    seed : int
+        Texture and noise seed.
+
+    Returns
+    -------
+    views : ndarray, shape (n, n, size, size)
+    disparity : ndarray, shape (size, size)
+    """
+    rng = np.random.default_rng(seed)
+    tex = _texture(rng, 0.45, 0.08, 0.35)
+    cc = n // 2
+    y, x = np.mgrid[0:size, 0:size].astype(float)
+    xc = x - (size - 1) / 2
+    slope = (d_range[1] - d_range[0]) / (size - 1)
+    d0 = (d_range[1] + d_range[0]) / 2
+    y0, y1, x0, x1 = (int(f * size) for f in wall)
+    views = np.empty((n, n, size, size))
+    for r in range(n):
+        for c in range(n):
+            dc, dr = c - cc, r - cc
+            # the plane: centre pixel x sees surface point u, shown in view c at
+            # u - d(u) (c - cc), d = d0 + slope u (as plane_views)
+            u = (xc + d0 * dc) / (1 - slope * dc)
+            plane = tex(u, y + (d0 + slope * u) * dr)
+            xf, yf = x + d_wall * dc, y + d_wall * dr
+            on_wall = (yf >= y0) & (yf < y1) & (xf >= x0) & (xf < x1)
+            shade = 0.6 + shading * (np.sin(2 * np.pi * xf / wavelength)
+                                     * np.cos(2 * np.pi * yf / wavelength))
+            views[r, c] = np.where(on_wall, shade, plane)
+    if noise > 0:
+        views = views + rng.normal(0.0, noise, views.shape)
+    if bits:
+        q = 2 ** bits - 1
+        views = np.round(np.clip(views, 0.0, 1.0) * q) / q
+    on_wall = (y >= y0) & (y < y1) & (x >= x0) & (x < x1)
+    return views, np.where(on_wall, d_wall, d0 + slope * xc)

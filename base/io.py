@@ -18,6 +18,7 @@ interrupted write never leaves a truncated file or destroys an existing one.
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import tempfile
@@ -37,45 +38,60 @@ __all__ = ["save_volume", "load_volume", "save_estimate", "save_estimates", "loa
 
 
 # Every temporary file or folder this process has made and not yet renamed or removed,
-# keyed by the process that made it (a forked child inherits the set but not the files).
-# A writer removes its own on failure, but one spot cannot be guarded from inside: a
-# signal acted on as ``__exit__`` starts (CPython looks for signals at a function's
-# start), before its try.  The CLI's interrupt handler, and atexit, remove what is left.
-_LIVE: dict[str, tuple] = {}        # name: (pid, its open file or None)
+# with the process and the thread that made it (a forked child inherits the registry but
+# not the files; another thread's may still be being written).  A writer removes its own
+# on failure, but one spot cannot be guarded from inside: a signal acted on as
+# ``__exit__`` starts (CPython looks for signals at a function's start), before its try.
+# The CLI's interrupt handler, and atexit, remove what is left.
+_LIVE: dict[str, tuple] = {}        # absolute name: (pid, thread, its open file or None)
 
 
 def _keep(path, fh=None) -> None:
-    _LIVE[str(path)] = (os.getpid(), fh)
+    import threading
+
+    _LIVE[os.path.abspath(path)] = (os.getpid(), threading.current_thread(), fh)
 
 
 def _drop(path) -> None:
-    _LIVE.pop(str(path), None)
+    _LIVE.pop(os.path.abspath(path), None)
 
 
 def remove_temporaries() -> list[str]:
-    """Remove every temporary file and folder this process's atomic writers made and did
-    not rename or remove (an interrupt at a moment no writer can guard); the targets are
-    untouched.  Returns the names removed."""
+    """Remove the temporary files and folders this process's atomic writers made and
+    neither renamed nor removed (an interrupt at a moment no writer can guard); the
+    targets are untouched.  Those of another thread that is still running are left to
+    it (it may be writing them).  SIGINT and SIGTERM wait until it is done.
+
+    Returns
+    -------
+    list of str
+        The absolute names removed.
+    """
     import shutil
+    import threading
 
     removed = []
-    for path, (pid, fh) in list(_LIVE.items()):
-        if pid != os.getpid():
-            continue
-        _drop(path)
-        if fh is not None:
+    me = threading.current_thread()
+    with signals_deferred():
+        for path, (pid, thread, fh) in list(_LIVE.items()):
+            if pid != os.getpid() or (thread is not me and thread.is_alive()):
+                continue
+            if fh is not None:
+                try:
+                    fh.close()
+                except OSError:         # a failed flush: the file is removed anyway
+                    pass
             try:
-                fh.close()
-            except OSError:         # a failed flush: the file is removed anyway
+                if os.path.isdir(path) and not os.path.islink(path):
+                    shutil.rmtree(path)
+                else:
+                    os.unlink(path)
+                removed.append(path)
+            except FileNotFoundError:
                 pass
-        try:
-            if os.path.isdir(path) and not os.path.islink(path):
-                shutil.rmtree(path, ignore_errors=True)
-            else:
-                os.unlink(path)
-            removed.append(path)
-        except FileNotFoundError:
-            pass
+            except OSError:             # a folder made read-only since: left, not raised
+                continue
+            _drop(path)
     return removed
 
 
@@ -481,12 +497,10 @@ class atomic_write_set:
             raise errors[0]
 
     def __exit__(self, exc_type, exc, tb):
-        if exc_type is not None:
-            self._discard()
-            return False
-        import fcntl
-
         try:
+            if exc_type is not None:
+                self._discard()
+                return False
             for w in self.writers:
                 w.fh.close()
             # an interrupt between two renames would leave a set of outputs from two

@@ -349,7 +349,7 @@ def test_cli_defaults_come_from_the_library():
     assert "median" in _subcommands()["growth"].description
 
 
-@pytest.mark.parametrize("target", ["one", "set"])
+@pytest.mark.parametrize("target", ["one", "set", "folder"])
 def test_an_interrupt_at_every_line_of_the_writers_leaves_old_or_new(tmp_path, target):
     """A KeyboardInterrupt raised at each line and call of the atomic writers in
     turn, wherever a real signal could land (not inside ``signals_deferred``, which holds
@@ -361,23 +361,31 @@ def test_an_interrupt_at_every_line_of_the_writers_leaves_old_or_new(tmp_path, t
     the block that removes the temporaries, so an interrupt there left them all.  This
     test hits that moment, and every other one, every time.  An interrupt as ``__exit__``
     starts cannot be caught inside the writer; the CLI removes those temporaries
-    (``remove_temporaries``), and so does this test, after the interrupt."""
+    (``remove_temporaries``), and so does this test, after the interrupt, and checks that
+    it had nothing to remove after an interrupt anywhere else (the writers clean up
+    themselves)."""
+    import linecache
+    import os
     import signal
     import sys
 
     import gridflow.io as gio
 
     io_file = gio.atomic_write.__init__.__code__.co_filename
-    names = ["a.npz"] if target == "one" else ["a.npz", "b.npz", "c.npz"]
+    names = {"one": ["a.npz"], "set": ["a.npz", "b.npz", "c.npz"], "folder": []}[target]
 
     def write():
         if target == "one":
             with gio.atomic_write(tmp_path / "a.npz") as fh:
                 fh.write(b"new")
-        else:
+        elif target == "set":
             with gio.atomic_write_set([tmp_path / n for n in names]) as fhs:
                 for fh in fhs:
                     fh.write(b"new")
+        else:
+            with gio.folder_beside(tmp_path / "scene") as tmp:
+                (tmp / "x").write_bytes(b"new")
+                os.rename(tmp, tmp_path / "scene")
 
     def deferred():
         h = signal.getsignal(signal.SIGINT)
@@ -388,6 +396,7 @@ def test_an_interrupt_at_every_line_of_the_writers_leaves_old_or_new(tmp_path, t
         for n in names:
             (tmp_path / n).write_bytes(b"old")
         seen = [0]
+        where = []
 
         def tracer(frame, event, arg):
             if frame.f_code.co_filename != io_file:
@@ -399,22 +408,37 @@ def test_an_interrupt_at_every_line_of_the_writers_leaves_old_or_new(tmp_path, t
             if event in ("call", "line") and not deferred():
                 seen[0] += 1
                 if seen[0] == hit_at:
+                    line = linecache.getline(frame.f_code.co_filename, frame.f_lineno)
+                    where.append((frame.f_code.co_name, event, line.strip()))
                     raise KeyboardInterrupt(f"at {frame.f_code.co_name}:{frame.f_lineno}")
             return tracer
 
         sys.settrace(tracer)
+        removed = []
         try:
             write()
             interrupted = None
         except KeyboardInterrupt as exc:
             interrupted = str(exc)
-            gio.remove_temporaries()        # as the CLI's interrupt handler does
+            removed = gio.remove_temporaries()      # as the CLI's interrupt handler does
         finally:
             sys.settrace(None)
         left = sorted(p.name for p in tmp_path.iterdir())
-        contents = {(tmp_path / n).read_bytes() for n in names}
-        assert left == sorted(names), (interrupted, left)
-        assert contents in ({b"old"}, {b"new"}), (interrupted, contents)
+        if target == "folder":
+            assert left in ([], ["scene"]), (interrupted, left)
+            if left:
+                assert (tmp_path / "scene" / "x").read_bytes() == b"new"
+                (tmp_path / "scene" / "x").unlink()
+                (tmp_path / "scene").rmdir()
+        else:
+            contents = {(tmp_path / n).read_bytes() for n in names}
+            assert left == sorted(names), (interrupted, left)
+            assert contents in ({b"old"}, {b"new"}), (interrupted, contents)
+        # only an interrupt as an __exit__ starts (its 'call' event, or its first line,
+        # the try, where CPython itself would not look for signals) needs the registry
+        starts = where and where[0][0] == "__exit__" and (where[0][1] == "call"
+                                                        or where[0][2] == "try:")
+        assert not removed or starts, (interrupted, where, removed)
         if interrupted is None:
             break                           # past the last moment: the write ran through
         hit_at += 1

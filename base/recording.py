@@ -55,7 +55,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .volume import CameraGeometry, Source, SourceError, check_geometry, check_times
+from .volume import (CameraGeometry, Source, SourceError, check_geometry, check_times,
+                     file_states)
 
 __all__ = ["open_recording_store", "write_recording", "check_recording", "is_recording_store",
            "MapStore", "RecordingError", "RECORDING_KIND", "MAPS_KIND"]
@@ -178,8 +179,6 @@ class _ZarrReader:
                 del self._cache[next(iter(self._cache))]    # the first kept
 
     def _signature(self, frame: int) -> tuple:
-        from .volume import file_states
-
         return tuple(file_states(self.files(frame, frame + 1)))
 
     def _frame(self, t: int) -> np.ndarray:

@@ -102,11 +102,19 @@ class GridVolume:
                               self.meta.get("units") or "world units")
 
 
-
 def file_states(paths) -> list[tuple]:
-    """``(path, size, mtime_ns)`` of each file, ``(path, None, None)`` for one missing:
-    what a stored frame's "has it changed" checks compare (reading every byte is not an
-    option)."""
+    """What a stored frame's "has it changed" checks compare (reading every byte is not an
+    option).
+
+    Parameters
+    ----------
+    paths : iterable of pathlib.Path
+
+    Returns
+    -------
+    list of tuple
+        ``(path, size, mtime_ns)`` per file, ``(path, None, None)`` for one missing.
+    """
     out = []
     for p in paths:
         try:
@@ -115,6 +123,7 @@ def file_states(paths) -> list[tuple]:
         except FileNotFoundError:
             out.append((p, None, None))
     return out
+
 
 class SourceError(FileFormatError):
     """An input that no backend opens, or that its backend refuses; names the path."""

@@ -131,8 +131,9 @@ def estimate_shear_range(views: np.ndarray, *, filters: str = DEFAULTS["filters"
         ``floor(lo) .. ceil(hi)``, as for a stated range (:func:`stated_shears`).
     info : dict
         ``lo``, ``hi`` (the confirmed coarse disparities' percentiles, px per view),
-        ``k`` (the decimation used) and ``levels`` (each level tried: k, lo, hi, and
-        the fraction of its estimated pixels confirmed).
+        ``k`` (the decimation used) and ``levels``: each level tried as a tuple ``(k,
+        lo, hi, confirmed)``, ``confirmed`` the fraction of its estimated pixels
+        confirmed; ``lo`` and ``hi`` are None at a level with fewer than 16 confirmed.
     """
     v = np.asarray(views, dtype=np.float64)
     if v.ndim != 4 or v.shape[0] != v.shape[1] or v.shape[0] % 2 == 0:

@@ -109,12 +109,14 @@ def smooth_wall_views(n: int = 9, size: int = 256, d_range=(-3.0, 2.4), d_wall: 
                       wall=(0.15, 0.95, 0.2, 0.95), shading: float = 0.0,
                       wavelength: float = 120.0, noise: float = 0.0, bits: int | None = 8,
                       seed: int = 0):
-    """A smooth wall in front of a textured plane slanted in x, as on HCI scenes with large
-    texture-poor regions: a rectangle of disparity ``d_wall`` shaded by at most
-    ``shading`` (a product of sinusoids of ``wavelength`` px; 0: uniform), occluding the
-    plane, whose disparity runs linearly from ``d_range[0]`` (left edge) to ``d_range[1]``
-    (right edge).  Exact occlusion; optional Gaussian sensor noise, then quantisation to
-    ``bits`` bits, as an 8-bit camera's images.
+    """A smooth wall and a textured plane slanted in x through it, as on HCI scenes with
+    large texture-poor regions: a fronto-parallel rectangle of disparity ``d_wall`` shaded
+    by at most ``shading`` (a product of sinusoids of ``wavelength`` px; 0: uniform), and
+    a plane whose disparity runs linearly from ``d_range[0]`` (left edge) to
+    ``d_range[1]`` (right edge); each ray sees the nearer of the two (the larger
+    disparity): the wall occludes the plane where the plane lies behind it, and the plane
+    cuts through the wall where it comes nearer.  Exact occlusion; optional Gaussian
+    sensor noise, then quantisation to ``bits`` bits, as an 8-bit camera's images.
 
     Parameters
     ----------
@@ -156,9 +158,12 @@ def smooth_wall_views(n: int = 9, size: int = 256, d_range=(-3.0, 2.4), d_wall: 
             # the plane: centre pixel x sees surface point u, shown in view c at
             # u - d(u) (c - cc), d = d0 + slope u (as plane_views)
             u = (xc + d0 * dc) / (1 - slope * dc)
-            plane = tex(u, y + (d0 + slope * u) * dr)
+            d_plane = d0 + slope * u
+            plane = tex(u, y + d_plane * dr)
             xf, yf = x + d_wall * dc, y + d_wall * dr
-            on_wall = (yf >= y0) & (yf < y1) & (xf >= x0) & (xf < x1)
+            # the wall where its ray meets it first (the larger disparity is the nearer)
+            on_wall = ((yf >= y0) & (yf < y1) & (xf >= x0) & (xf < x1)
+                       & (d_wall >= d_plane))
             shade = 0.6 + shading * (np.sin(2 * np.pi * xf / wavelength)
                                      * np.cos(2 * np.pi * yf / wavelength))
             views[r, c] = np.where(on_wall, shade, plane)
@@ -167,5 +172,6 @@ def smooth_wall_views(n: int = 9, size: int = 256, d_range=(-3.0, 2.4), d_wall: 
     if bits:
         q = 2 ** bits - 1
         views = np.round(np.clip(views, 0.0, 1.0) * q) / q
-    on_wall = (y >= y0) & (y < y1) & (x >= x0) & (x < x1)
-    return views, np.where(on_wall, d_wall, d0 + slope * xc)
+    d_plane = d0 + slope * xc
+    on_wall = (y >= y0) & (y < y1) & (x >= x0) & (x < x1) & (d_wall >= d_plane)
+    return views, np.where(on_wall, d_wall, d_plane)

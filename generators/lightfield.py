@@ -23,6 +23,15 @@ def _texture(rng, mean: float, amp: float, freq: float, terms: int = 6):
                                          for i in range(terms))
 
 
+def _slanted_plane(xc, d0: float, slope: float, dc: int):
+    """The point ``u`` (px from the image centre, along x) of the plane of disparity
+    ``d0 + slope * u`` that pixel column ``xc`` of the view ``dc`` camera steps off the
+    centre sees, and its disparity: the point appears in that view at ``u - d(u) dc``, so
+    ``xc = u - (d0 + slope u) dc`` solved for ``u``."""
+    u = (xc + d0 * dc) / (1 - slope * dc)
+    return u, d0 + slope * u
+
+
 def plane_views(n: int = 5, size: int = 96, d0: float = 0.4, slope: float = 0.0,
                 seed: int = 0, freq: float = 0.35):
     """A textured fronto-parallel (or x-slanted) plane of disparity ``d0 + slope * x``.
@@ -53,14 +62,11 @@ def plane_views(n: int = 5, size: int = 96, d0: float = 0.4, slope: float = 0.0,
     cc = n // 2
     y, x = np.mgrid[0:size, 0:size].astype(float)
     xc = x - (size - 1) / 2
-    # centre pixel x sees surface point u; in view c it appears at u - d(u) (c - cc)
-    # with d = d0 + slope * u: solve x = u - (d0 + slope u) dc for u
     views = np.empty((n, n, size, size))
     for r in range(n):
         for c in range(n):
             dc, dr = c - cc, r - cc
-            u = (xc + d0 * dc) / (1 - slope * dc)
-            d = d0 + slope * u
+            u, d = _slanted_plane(xc, d0, slope, dc)
             views[r, c] = tex(u, y + d * dr)
     return views, d0 + slope * xc
 
@@ -155,10 +161,7 @@ def smooth_wall_views(n: int = 9, size: int = 256, d_range=(-3.0, 2.4), d_wall: 
     for r in range(n):
         for c in range(n):
             dc, dr = c - cc, r - cc
-            # the plane: centre pixel x sees surface point u, shown in view c at
-            # u - d(u) (c - cc), d = d0 + slope u (as plane_views)
-            u = (xc + d0 * dc) / (1 - slope * dc)
-            d_plane = d0 + slope * u
+            u, d_plane = _slanted_plane(xc, d0, slope, dc)
             plane = tex(u, y + d_plane * dr)
             xf, yf = x + d_wall * dc, y + d_wall * dr
             # the wall where its ray meets it first (the larger disparity is the nearer)

@@ -300,10 +300,11 @@ def _intersect_mapped(p: SinusoidParams, A: np.ndarray, x, y, sx: float, sy: flo
     c1 = A @ np.array([1.0, 0.0, p.Z_X])
     c2 = A @ np.array([0.0, 1.0, p.Z_Y])
     N = np.cross(c1, c2)
-    b = np.array([sx - p.U_X * t, sy - p.U_Y * t, -p.Z0 - p.U_Z * t])   # s - X_c - U t
+    # s - X_c - U t, shape (3,) or (3, ...) where the camera offsets are arrays
+    b = np.stack(np.broadcast_arrays(sx - p.U_X * t, sy - p.U_Y * t, -p.Z0 - p.U_Z * t))
     rdotN = (x / p.f) * N[0] + (y / p.f) * N[1] + N[2]
     with np.errstate(divide="ignore", invalid="ignore"):
-        Z = -(b @ N) / rdotN
+        Z = -(N @ b) / rdotN
     if np.any(rdotN <= 0) or not np.all(Z > 0):
         raise ParameterError(
             "the deforming plane is seen edge-on or behind a camera for some pixel at "
@@ -505,24 +506,26 @@ def check_params(p: SinusoidParams) -> None:
     border = np.zeros(x.shape, dtype=bool)
     border[[0, -1], :] = True
     border[:, [0, -1]] = True
-    xb, yb = x[border], y[border]
     Sy, Sx = p.grid
+    # every view's border pixels in one flat array per frame (views outer, pixels inner):
+    # the intersections are elementwise in the pixel and the camera offset, so one call
+    # a frame does what one call a view did (a sweep spec checks hundreds of points)
+    n_border = int(border.sum())
+    sx = np.repeat(np.tile((np.arange(Sx) - (Sx - 1) / 2.0) * p.spacing[0], Sy), n_border)
+    sy = np.repeat(np.repeat((np.arange(Sy) - (Sy - 1) / 2.0) * p.spacing[1], Sx), n_border)
+    xb, yb = np.tile(x[border], Sy * Sx), np.tile(y[border], Sy * Sx)
+    G = velocity_gradient(p) if p.deforms else None
     for k in range(p.frames):
         t = (k - p.ref_frame) * p.frame_interval
-        for i in range(Sy):
-            for j in range(Sx):
-                sx = (j - (Sx - 1) / 2.0) * p.spacing[0]
-                sy = (i - (Sy - 1) / 2.0) * p.spacing[1]
-                if p.deforms:
-                    _, Xm, Ym = _intersect_deforming(p, velocity_gradient(p), xb, yb, sx,
-                                                     sy, t)
-                else:
-                    _, Xm, Ym = _intersect(p, xb, yb, sx, sy, t)
-                h = ((p.a1 + p.a1x * Xm + p.a1y * Ym) * t
-                     + (p.a2 + p.a2x * Xm + p.a2y * Ym) * t * t)
-                if np.max(np.abs(h)) > _MAX_EXPONENT:
-                    raise ParameterError(
-                        f"brightness exponent |h| reaches {np.max(np.abs(h)):.3g} (> "
-                        f"{_MAX_EXPONENT}) at frame {k}: a1={p.a1}, a1x={p.a1x}, a1y={p.a1y}, "
-                        f"a2={p.a2}, a2x={p.a2x}, a2y={p.a2y} overflow exp(); use smaller "
-                        "values, fewer frames or a smaller image")
+        if G is not None:
+            _, Xm, Ym = _intersect_deforming(p, G, xb, yb, sx, sy, t)
+        else:
+            _, Xm, Ym = _intersect(p, xb, yb, sx, sy, t)
+        h = ((p.a1 + p.a1x * Xm + p.a1y * Ym) * t
+             + (p.a2 + p.a2x * Xm + p.a2y * Ym) * t * t)
+        if np.max(np.abs(h)) > _MAX_EXPONENT:
+            raise ParameterError(
+                f"brightness exponent |h| reaches {np.max(np.abs(h)):.3g} (> "
+                f"{_MAX_EXPONENT}) at frame {k}: a1={p.a1}, a1x={p.a1x}, a1y={p.a1y}, "
+                f"a2={p.a2}, a2x={p.a2x}, a2y={p.a2y} overflow exp(); use smaller "
+                "values, fewer frames or a smaller image")

@@ -217,8 +217,12 @@ baseline: $(STAMP)
 	$(BIN)/gridflow sweep paper_setup_zoom -o $(ZOOM_CSV)
 	$(BIN)/gridflow claims $(ZOOM_CSV) --write-csv results/claims_paper_setup_zoom.csv --write-doc docs/reproduction.md
 
+# the test files shared among TEST_WORKERS processes (pytest-xdist; a file's tests stay in
+# one process, so its module fixtures are made once): CI's machine has two cores, and
+# most tests keep one busy.  TEST_WORKERS=0 runs them all in this process.
+TEST_WORKERS ?= 2
 test: $(STAMP) $(KERNELS) povray
-	$(PY) -m pytest
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 # plausible one-line bugs, each applied alone to a copy of the package, against the
 # correctness tests that should catch it (tests/mutation.py; not part of make test)

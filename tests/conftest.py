@@ -49,6 +49,19 @@ def small_volume(tmp_path_factory):
     return builders.small_volume(tmp_path_factory.mktemp("vol") / "v.npz")
 
 
+def pytest_sessionfinish(session):
+    """Under pytest-xdist a worker hands its tally to the controller (``workeroutput``)."""
+    out = getattr(session.config, "workeroutput", None)
+    if out is not None:
+        out["tried"] = dict(builders.TRIED)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    """The controller adds each worker's tally to its own (pytest-xdist's hook)."""
+    builders.TRIED.update(getattr(node, "workeroutput", {}).get("tried", {}))
+
+
 def pytest_terminal_summary(terminalreporter):
     """Report how many inputs the property and hostile-input tests tried (their
     ``builders.tried`` tally), and what became of them."""

@@ -257,17 +257,21 @@ class SweepSpec:
             raise SpecError(f"{source}: [estimator]: {exc}") from None
         checked = set()
         for p in self.points():
-            # the noise level and the seed do not enter the geometry or the brightness
-            # that check_params tests: one point per swept value is checked
+            where = f"{source}: {p.param} = {p.value}"
+            try:
+                params = self.params(p, base)      # every point: its seed is checked here
+            except (TypeError, ValueError) as exc:
+                raise SpecError(f"{where}, noise {p.noise}, seed {p.seed}: {exc}") from None
+            # the noise level and the seed do not enter the size, the geometry or the
+            # brightness that _check_size and check_params test: once per swept value
             if (p.param, p.value) in checked:
                 continue
             checked.add((p.param, p.value))
-            params = self.params(p, base)
-            _check_size(params, f"{source}: {p.param} = {p.value}")
+            _check_size(params, where)
             try:
                 check_params(params)
             except (TypeError, ValueError) as exc:
-                raise SpecError(f"{source}: {p.param} = {p.value}: {exc}") from None
+                raise SpecError(f"{where}: {exc}") from None
 
     def points(self) -> list[Point]:
         """All points in the canonical order of the output CSV.  A noise-free point is

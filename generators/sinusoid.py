@@ -170,7 +170,8 @@ class SinusoidParams:
             for v in vals:
                 if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
                     raise TypeError(f"{fl.name} must be numeric, got {val!r}")
-                if not np.isfinite(v):
+                # a Python int is finite at any size (np.isfinite refuses one of 2**64)
+                if not isinstance(v, (int, np.integer)) and not np.isfinite(v):
                     raise ParameterError(f"{fl.name} must be finite, got {val!r}")
         if len(self.grid) != 2 or len(self.spacing) != 2:
             raise ParameterError("grid is (Sy, Sx) and spacing is (ds_x, ds_y)")
@@ -253,8 +254,9 @@ def _pixel_grid(p: SinusoidParams) -> tuple[np.ndarray, np.ndarray]:
     return np.meshgrid(x, y)
 
 
-def _intersect(p: SinusoidParams, x, y, sx: float, sy: float, t: float):
-    """Exact ray-plane intersection; returns depth and material coordinates."""
+def _intersect(p: SinusoidParams, x, y, sx, sy, t: float):
+    """Exact ray-plane intersection; returns depth and material coordinates.  The camera
+    offsets ``sx, sy`` are floats or arrays that broadcast with the pixels ``x, y``."""
     denom = 1.0 - (p.Z_X * x + p.Z_Y * y) / p.f
     num = p.Z0 + p.U_Z * t + p.Z_X * (sx - p.U_X * t) + p.Z_Y * (sy - p.U_Y * t)
     # a pixel whose ray is parallel to the plane (denom exactly 0) is refused before the
@@ -271,8 +273,7 @@ def _intersect(p: SinusoidParams, x, y, sx: float, sy: float, t: float):
     return Z, Xm, Ym
 
 
-def _intersect_deforming(p: SinusoidParams, G: np.ndarray, x, y, sx: float, sy: float,
-                         t: float):
+def _intersect_deforming(p: SinusoidParams, G: np.ndarray, x, y, sx, sy, t: float):
     """Exact ray-plane intersection with the plane deformed by ``I + G t``: the material
     point ``M = X_c + Xm e1 + Ym e2`` is at ``X_c + U t + (I + G t)(M - X_c)``.  Along the
     ray ``s + Z r``, ``r = (x/f, y/f, 1)``: ``q = s + Z r - X_c - U t = Xm c1 + Ym c2``
@@ -293,8 +294,7 @@ def _intersect_deforming(p: SinusoidParams, G: np.ndarray, x, y, sx: float, sy: 
     return Z, Xm, Ym
 
 
-def _intersect_mapped(p: SinusoidParams, A: np.ndarray, x, y, sx: float, sy: float,
-                      t: float):
+def _intersect_mapped(p: SinusoidParams, A: np.ndarray, x, y, sx, sy, t: float):
     """:func:`_intersect_deforming` with the plane mapped by any 3 x 3 ``A`` at time ``t``
     (``I + G t`` there; a recording whose growth rate changes with time passes its own)."""
     c1 = A @ np.array([1.0, 0.0, p.Z_X])

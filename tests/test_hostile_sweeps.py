@@ -16,6 +16,7 @@ import sys
 from functools import partial
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -59,6 +60,22 @@ def test_every_spec_field_is_honoured_or_refused(raw, match):
     with pytest.raises(SpecError, match=match):
         SweepSpec.from_dict(raw, source="spec.toml")
     tried("malformed sweep spec")
+
+
+def test_a_seed_of_any_size_is_checked_with_its_point():
+    """Seeds are checked with every point (a spec checks the geometry once per swept
+    value, but builds every point's parameters): a seed beyond 64 bits is a seed (it
+    raised a bare TypeError from np.isfinite before), and its noisy points render."""
+    from gridflow.generators import make_sinusoid
+
+    spec = SweepSpec.from_dict(_with(sweep={"noise": [0.01], "seeds": [0, 2 ** 64]}))
+    points = spec.points()
+    assert [p.seed for p in points] == [0, 2 ** 64, 0, 2 ** 64]
+    big = make_sinusoid(spec.params(points[1]).replace(height=8, width=8, frames=3))
+    small = make_sinusoid(spec.params(points[0]).replace(height=8, width=8, frames=3))
+    assert big.volume.shape == small.volume.shape and not np.array_equal(big.volume,
+                                                                         small.volume)
+    tried("seed beyond 64 bits")
 
 
 def test_integer_axes_run(tmp_path):

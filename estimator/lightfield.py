@@ -318,6 +318,11 @@ def _admissible(disp, err, interior, s: int, m: int):
     return np.where(ok, d, np.nan), np.where(ok, err, np.inf)
 
 
+# The smallest row/column disagreement the confidence of "lines" resolves (px per view):
+# far below the estimator's precision (its fast path agrees with the reference to 1e-6 of
+# a quantity's scale)
+AGREE_FLOOR = 1e-6
+
 # the choices' own tuning, keywords of estimate_refocused (its docstring), with defaults
 REFOCUS_TUNING = {"subgrid": None, "aggregate": 3, "coarse_sigma": 2.0}
 
@@ -381,11 +386,15 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     -------
     Estimate
         Model ``bcc``; maps, each shape (H, W): ``disparity``; ``shear``: the shear used;
-        ``model_error``: the model error of the estimate kept; ``confidence``:
-        ``-log10`` of that model error relative to its median over the image (larger is
-        better; threshold it to mask); ``filled``: 1 where the value was filled from the
-        neighbours (see ``fill``), else 0; with ``select="coarse"`` also ``coarse``: the
-        coarse disparity.  ``interior``: the pixels with a value, an admissible estimate
+        ``model_error``: the model error of the estimate kept; ``confidence`` (larger is
+        better; threshold it to mask): with ``"lines"`` ``-log10`` of the product of
+        the disagreement (px per view) between the best estimates of the row's and of
+        the column's sub-grids at the chosen shear and the model error relative to its
+        median (the lowest of the image where one of the two has no estimate), else
+        ``-log10`` of the model error relative to its median (``bench/README.md``,
+        *Light fields*, ranks both against the errors); ``filled``: 1 where the value
+        was filled from the neighbours (see ``fill``), else 0; with ``select="coarse"``
+        also ``coarse``: the coarse disparity.  ``interior``: the pixels with a value, an admissible estimate
         of their own (finite, within half a pixel of its shear: ``interior & (filled ==
         0)``) or a filled one.  ``settings``: the shears and the settings used.
     """
@@ -441,7 +450,23 @@ def _finish(out: dict, sigma: float, fill: bool, median: int):
     valid = np.isfinite(disp)
     with np.errstate(divide="ignore", invalid="ignore"):
         med = np.nanmedian(err[valid]) if valid.any() else np.nan
-        conf = np.where(valid, -log10(err / med), np.nan)
+        if "disagreement" in out:
+            # two signs of a wrong estimate, multiplied: the row's and the column's
+            # estimates apart (in a texture-poor region, where the model error can be
+            # small, they disagree) and the model error relative to its median (at an
+            # occluding edge, where they can agree on a mixture); each floored, the
+            # model error as the cost of the choice floors it.  A pixel one direction
+            # leaves without an estimate is unconfirmed: the lowest confidence there is
+            # (0 where no pixel is confirmed)
+            rel = np.maximum(err, 1e-9 * med) / med
+            dis = np.maximum(out["disagreement"], AGREE_FLOOR)
+            conf = np.where(valid, -log10(dis * rel), np.nan)
+            unconfirmed = valid & np.isnan(conf)
+            if unconfirmed.any():
+                conf[unconfirmed] = (np.nanmin(conf) if (valid & ~unconfirmed).any()
+                                     else 0.0)
+        else:
+            conf = np.where(valid, -log10(err / med), np.nan)
     filled = np.zeros((H, W), dtype=bool)
     if fill and valid.any() and not valid.all():
         disp, filled = _fill(disp, valid, out["inside"], sigma)
@@ -545,25 +570,44 @@ def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate, lines,
     rows, cols = np.indices((H, W))
     D = np.full((lo.size, H, W), np.nan)
     E = np.full((lo.size, H, W), np.inf)
+    # with line sub-grids, the best estimate of the row's sub-grids and of the column's
+    # apart (group 0: rows, 1: columns), and which sub-grid gave it; square sub-grids
+    # are one group.  The best of all is the better group's (the first sub-grid on a tie,
+    # as when they are taken in turn), so D and E are those of one running minimum
+    groups = 2 if lines else 1
+    if lines:
+        DG = np.full((groups, lo.size, H, W), np.nan)
     for k, s in enumerate(lo):
         sv = shear(v, int(s))
         m = abs(int(s)) * (n // 2)
+        Eg = np.full((groups, H, W), np.inf)
+        Dg = np.full((groups, H, W), np.nan)
+        Jg = np.full((groups, H, W), -1, dtype=np.int64)
         # a sub-grid off the centre sees the centre's point within |d - s| * (its offset)
         # <= 1 px of the same pixel after the shear: the views on one side of an
         # occluding edge, where the full grid mixes two surfaces.  A 1-D sub-grid along
         # an edge's direction sees no occlusion at all (thin structures)
-        for disp, err_s, interior in _subgrid_estimates(sv, subgrid, sigma, window, filters,
-                                                        lines):
+        for j, (disp, err_s, interior) in enumerate(
+                _subgrid_estimates(sv, subgrid, sigma, window, filters, lines)):
             d, err = _admissible(disp, err_s, interior, int(s), m)
+            g = j % groups                 # lines: rows and columns come in turn
             # shifted windows: a pixel may take the estimate of a window that still
             # covers it (offset up to the window's radius), the one that fits best;
             # near an edge that is a window on the pixel's own side of it
             for oy in range(-R, R + 1):
                 for ox in range(-R, R + 1):
                     es = _shift_in(err, oy, ox, np.inf)
-                    better = es < E[k]
-                    E[k] = np.where(better, es, E[k])
-                    D[k] = np.where(better, _shift_in(d, oy, ox, np.nan), D[k])
+                    better = es < Eg[g]
+                    Eg[g] = np.where(better, es, Eg[g])
+                    Dg[g] = np.where(better, _shift_in(d, oy, ox, np.nan), Dg[g])
+                    Jg[g] = np.where(better, j, Jg[g])
+        if lines:
+            first = (Eg[0] < Eg[1]) | ((Eg[0] == Eg[1]) & (Jg[0] < Jg[1]))
+            E[k] = np.where(first, Eg[0], Eg[1])
+            D[k] = np.where(first, Dg[0], Dg[1])
+            DG[:, k] = Dg
+        else:
+            E[k], D[k] = Eg[0], Dg[0]
         if progress is not None:
             progress(k + 1, lo.size)
     # cost per shear: log model error (inadmissible: worse than any admissible one),
@@ -585,8 +629,15 @@ def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate, lines,
     idx = C.argmin(0)
     disp = D[idx, rows, cols]
     err = np.where(np.isfinite(disp), E[idx, rows, cols], np.nan)
-    return {"disparity": disp, "model_error": err, "shear": lo[idx].astype(float),
-            "inside": fin.any(0)}
+    out = {"disparity": disp, "model_error": err, "shear": lo[idx].astype(float),
+           "inside": fin.any(0)}
+    if lines:
+        # how far the row's and the column's best estimates at the chosen shear lie
+        # apart (px per view; NaN where either has none): where the data fix the
+        # disparity the two agree, in a smooth or texture-poor region they do not
+        # (noise, the aperture problem), whatever their model errors say
+        out["disagreement"] = np.abs(DG[0, idx, rows, cols] - DG[1, idx, rows, cols])
+    return out
 
 
 def _select_coarse(v, lo, sigma, window, filters, coarse_sigma, progress=None) -> dict:

@@ -756,3 +756,23 @@ def test_shear_range_holds_beside_a_smooth_wall(shading, noise):
     lo, hi = float(truth.min()), float(truth.max())
     assert shears[0] - 0.5 <= lo and shears[-1] + 0.5 >= hi, (shears, info)
     assert set(shears) <= set(stated_shears((lo, hi))), (shears, info)
+
+
+@pytest.mark.parametrize("shading", [0.0, 0.02])
+def test_the_confidence_ranks_the_errors_on_a_smooth_wall(shading):
+    """The default's confidence puts the smaller errors first where the data leave the
+    disparity open: the smooth wall beside a textured plane (128^2, 9 x 9 views, 8 bit,
+    noise of 4 grey levels).  Over the pixels with an estimate of their own, the most
+    confident half must be at least 15 % better than all of them (mean absolute error)
+    and Spearman's rho of confidence and -|error| at least 0.25.  Measured: 27 % and 29 %
+    better, rho 0.40 and 0.41; the former confidence (the model error relative to its
+    median, computed beside it from the same estimate) 0 % and 5 %, rho 0.09 and 0.14:
+    a texture-poor wall fits its wrong shears as well as the right one."""
+    from gridflow.bench.lightfield_study import confidence_ranking
+    from gridflow.estimator.lightfield import estimate_refocused
+    from gridflow.generators.lightfield import smooth_wall_views
+
+    views, truth = smooth_wall_views(n=9, size=128, shading=shading, noise=4 / 255)[:2]
+    c = confidence_ranking(estimate_refocused(views, tuple(range(-3, 4))).maps, truth)
+    assert c["mae_half"] <= 0.85 * c["mae_all"], c
+    assert c["rho"] >= 0.25, c

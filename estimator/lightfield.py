@@ -390,11 +390,12 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         better; threshold it to mask): with ``"lines"`` ``-log10`` of the product of
         the disagreement (px per view) between the best estimates of the row's and of
         the column's sub-grids at the chosen shear and the model error relative to its
-        median (the lowest of the image where one of the two has no estimate), else
-        ``-log10`` of the model error relative to its median (``bench/README.md``,
-        *Light fields*, ranks both against the errors); ``filled``: 1 where the value
-        was filled from the neighbours (see ``fill``), else 0; with ``select="coarse"``
-        also ``coarse``: the coarse disparity.  ``interior``: the pixels with a value, an admissible estimate
+        median of its positive values (floors: 1e-6 px, ``AGREE_FLOOR``, and nine
+        decades below that median; the lowest of the image where one of the two has no
+        estimate), else ``-log10`` of the model error relative to its median
+        (``bench/README.md``, *Light fields*, ranks both against the errors);
+        ``filled``: 1 where the value was filled from the neighbours (see ``fill``),
+        else 0; with ``select="coarse"`` also ``coarse``: the coarse disparity.  ``interior``: the pixels with a value, an admissible estimate
         of their own (finite, within half a pixel of its shear: ``interior & (filled ==
         0)``) or a filled one.  ``settings``: the shears and the settings used.
     """
@@ -449,15 +450,19 @@ def _finish(out: dict, sigma: float, fill: bool, median: int):
     H, W = disp.shape
     valid = np.isfinite(disp)
     with np.errstate(divide="ignore", invalid="ignore"):
-        med = np.nanmedian(err[valid]) if valid.any() else np.nan
         if "disagreement" in out:
             # two signs of a wrong estimate, multiplied: the row's and the column's
             # estimates apart (in a texture-poor region, where the model error can be
             # small, they disagree) and the model error relative to its median (at an
-            # occluding edge, where they can agree on a mixture); each floored, the
-            # model error as the cost of the choice floors it.  A pixel one direction
-            # leaves without an estimate is unconfirmed: the lowest confidence there is
-            # (0 where no pixel is confirmed)
+            # occluding edge, where they can agree on a mixture).  The model error is an
+            # eigenvalue, 0 or slightly negative by round-off on noise-free data: its
+            # median and floor (nine decades below) come from its positive values, as
+            # in the cost of the choice; the disagreement is floored at AGREE_FLOOR.
+            # So the confidence is at most 15.  A pixel one direction leaves without an
+            # estimate is unconfirmed: the lowest confidence there is (0 where no pixel
+            # is confirmed)
+            pos = err[valid & (err > 0)]
+            med = float(np.median(pos)) if pos.size else 1.0
             rel = np.maximum(err, 1e-9 * med) / med
             dis = np.maximum(out["disagreement"], AGREE_FLOOR)
             conf = np.where(valid, -log10(dis * rel), np.nan)
@@ -466,6 +471,7 @@ def _finish(out: dict, sigma: float, fill: bool, median: int):
                 conf[unconfirmed] = (np.nanmin(conf) if (valid & ~unconfirmed).any()
                                      else 0.0)
         else:
+            med = np.nanmedian(err[valid]) if valid.any() else np.nan
             conf = np.where(valid, -log10(err / med), np.nan)
     filled = np.zeros((H, W), dtype=bool)
     if fill and valid.any() and not valid.all():

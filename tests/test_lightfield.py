@@ -776,3 +776,28 @@ def test_the_confidence_ranks_the_errors_on_a_smooth_wall(shading):
     c = confidence_ranking(estimate_refocused(views, tuple(range(-3, 4))).maps, truth)
     assert c["mae_half"] <= 0.85 * c["mae_all"], c
     assert c["rho"] >= 0.25, c
+
+
+def test_the_confidence_survives_a_model_error_median_of_zero():
+    """Noise-free views, half of them a constant and half a textured plane: the model
+    error is 0 or round-off below it on most pixels (its median -2.7e-20 in the review).
+    The confidence takes the model error's median and floor from its positive values,
+    so every pixel with an estimate has a finite confidence and the textured half,
+    estimated exactly, is not given the image's lowest (with the median of all values
+    its pixels with a positive model error went NaN, then to the lowest).  Not asked: that
+    the constant half ranks below; noise-free, its row and column estimates agree and its
+    model error is 0, so neither sign sees it (any disparity fits a constant)."""
+    from gridflow.estimator.lightfield import estimate_refocused
+
+    pv, truth = plane_views(n=5, size=48, d0=0.4)
+    v = np.concatenate([np.full((5, 5, 48, 24), 0.5), pv[..., 24:]], -1)
+    e = estimate_refocused(v, (-1, 0, 1, 2), fill=False, median=0)
+    ok = np.isfinite(e["disparity"])
+    conf = e["confidence"]
+    assert np.isfinite(conf[ok]).all()
+    right = ok[:, 24:]
+    assert (np.abs(e["disparity"] - truth)[:, 24:][right] < 0.01).all()
+    assert (e["model_error"][:, 24:][right] > 0).sum() > 100     # the case in question
+    # measured: 1 of 968 textured pixels at the lowest (next to the constant half),
+    # 670 with the median of all values
+    assert (conf[:, 24:][right] == conf[ok].min()).mean() < 0.05

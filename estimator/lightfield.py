@@ -395,9 +395,10 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         estimate), else ``-log10`` of the model error relative to its median
         (``bench/README.md``, *Light fields*, ranks both against the errors);
         ``filled``: 1 where the value was filled from the neighbours (see ``fill``),
-        else 0; with ``select="coarse"`` also ``coarse``: the coarse disparity.  ``interior``: the pixels with a value, an admissible estimate
-        of their own (finite, within half a pixel of its shear: ``interior & (filled ==
-        0)``) or a filled one.  ``settings``: the shears and the settings used.
+        else 0; with ``select="coarse"`` also ``coarse``: the coarse disparity.
+        ``interior``: the pixels with a value, an admissible estimate of their own
+        (finite, within half a pixel of its shear: ``interior & (filled == 0)``) or a
+        filled one.  ``settings``: the shears and the settings used.
     """
     unknown = sorted(set(tuning) - set(REFOCUS_TUNING))
     if unknown:

@@ -37,6 +37,10 @@ pixels exactly, with no interpolation) and chooses, per pixel, one shear's estim
     the light-field counterpart of estimating on horizontal and vertical epipolar-plane
     images and keeping the more confident (Wanner and Goldluecke).
 
+With ``"lines"`` and ``"occlusion"``, a region whose shear the data leave open (smooth or
+texture-poor: every shear fits about as well) takes the shear nearest the confirmed
+coarse disparity of the decimated light field (``smooth``; :func:`_prior_cost`).
+
 ``gridflow peers`` scores them side by side (``results/peers_depth.csv`` for the
 rendered cube).
 """
@@ -171,6 +175,97 @@ def estimate_shear_range(views: np.ndarray, *, filters: str = DEFAULTS["filters"
     k, lo, hi = chosen
     shears = tuple(range(int(np.floor(lo)), int(np.ceil(hi)) + 1))
     return shears, {"lo": lo, "hi": hi, "k": k, "levels": levels}
+
+
+# How far (in multiples of the level's decimation k, full-resolution px) a coarse estimate
+# reaches: the low-pass before decimating (3 sigma = 1.5 k, :func:`_lowpass`), the coarse
+# estimator's window (5 taps: 2 coarse px = 2 k) and its derivative filters (5 taps: 2 k)
+_COARSE_SUPPORT = 1.5 + 2.0 + 2.0
+# Where the data leave a pixel's shear open: the aggregated cost of its best shear within
+# a factor of two (log10 2 decades) of its median over the shears
+_OPEN_DECADES = float(np.log10(2.0))
+# The coarse disparity's cost, decades of model error per px per view between a shear
+# and it: where the data leave the shear open (costs within _OPEN_DECADES) it decides
+_PRIOR_DECADES = 1.0
+
+
+def _coarse_prior(views: np.ndarray, filters: str) -> tuple[np.ndarray, np.ndarray]:
+    """The confirmed coarse disparity at full resolution, for the smooth regions.
+
+    The coarse pass of :func:`estimate_shear_range` at every level ``k`` in (2, 4, 8)
+    that leaves at least 16 px (:func:`_confirmed`: the grid's, the centre row's and
+    the centre column's estimates agree), each pixel taking the finest level that
+    confirms it; its value times ``k`` (px per view), repeated over the ``k x k``
+    full-resolution pixels of its coarse pixel.
+
+    Returns
+    -------
+    prior : ndarray, shape (H, W)
+        The coarse disparity (px per view), NaN where no level confirms one.
+    reach : ndarray, shape (H, W)
+        How far (px) that estimate's data reach: ``_COARSE_SUPPORT * k`` (0 where none).
+    """
+    n = views.shape[0]
+    H, W = views.shape[-2:]
+    m = min(n, 5)
+    c0 = (n - m) // 2
+    v = views[c0:c0 + m, c0:c0 + m]
+    prior = np.full((H, W), np.nan)
+    reach = np.zeros((H, W))
+    for k in (2, 4, 8):
+        if min(H, W) // k < 16:
+            continue
+        vk = _lowpass(v, 0.5 * k)[..., k // 2::k, k // 2::k]
+        d, confirmed = _confirmed(np.ascontiguousarray(vk), filters)
+        d = np.where(confirmed, d * k, np.nan)
+        # full-resolution pixel i lies in the coarse pixel centred nearest to it
+        iy = np.clip(np.round((np.arange(H) - k // 2) / k).astype(int), 0, d.shape[0] - 1)
+        ix = np.clip(np.round((np.arange(W) - k // 2) / k).astype(int), 0, d.shape[1] - 1)
+        up = d[np.ix_(iy, ix)]
+        new = ~np.isfinite(prior) & np.isfinite(up)
+        prior[new] = up[new]
+        reach[new] = _COARSE_SUPPORT * k
+    return prior, reach
+
+
+def _prior_cost(C: np.ndarray, lo: np.ndarray, prior, aggregate: int) -> tuple:
+    """The cost of the shears ``lo`` (``C``, shape (S, H, W), aggregated log model
+    errors) with the coarse disparity added where the data leave the shear open.
+
+    Open: the best shear's cost is within :data:`_OPEN_DECADES` of the pixel's median
+    over the shears (a smooth or texture-poor region: every shear fits about as well),
+    and so are most of its neighbours' within the aggregation's box (a region, not a
+    pixel between two surfaces).  A coarse estimate counts only as deep inside the open
+    region as its data reach (it does not mix in the textured surfaces around it);
+    every open pixel takes the nearest such estimate of its own region.  There the cost
+    grows by :data:`_PRIOR_DECADES` per px per view between the shear and that
+    estimate.
+    ``prior()`` gives the coarse disparity and its reach (:func:`_coarse_prior`); it is
+    called only where some open region is as deep as the finest level's reach.
+
+    Returns ``(C, open)``: the cost, shape (S, H, W), and the open pixels (bool, (H, W)).
+    """
+    from scipy.ndimage import distance_transform_edt, label, uniform_filter
+
+    spread = np.median(C, 0) - C.min(0)
+    box = 2 * int(aggregate) + 1
+    flat = uniform_filter((spread < _OPEN_DECADES).astype(float), box,
+                          mode="nearest") >= 0.5
+    depth = distance_transform_edt(flat)
+    if not (depth >= _COARSE_SUPPORT * 2).any():
+        # no open region as deep as the finest coarse level's reach: nothing to take
+        return C, np.zeros_like(flat)
+    p, reach = prior()
+    keep = np.isfinite(p) & (depth >= np.maximum(reach, 1.0))
+    if not keep.any():
+        return C, np.zeros_like(flat)
+    # the nearest kept estimate of the pixel's own open region (another region, e.g.
+    # the strip along the image border where no shear has an estimate, takes none)
+    regions, _ = label(flat)
+    near = tuple(distance_transform_edt(~keep, return_distances=False, return_indices=True))
+    flat &= regions[near] == regions
+    p = p[near]
+    return C + np.where(flat, _PRIOR_DECADES * np.abs(lo[:, None, None] - p), 0.0), flat
 
 
 def _confirmed(vk: np.ndarray, filters: str) -> tuple[np.ndarray, np.ndarray]:
@@ -324,7 +419,7 @@ def _admissible(disp, err, interior, s: int, m: int):
 AGREE_FLOOR = 1e-6
 
 # the choices' own tuning, keywords of estimate_refocused (its docstring), with defaults
-REFOCUS_TUNING = {"subgrid": None, "aggregate": 3, "coarse_sigma": 2.0}
+REFOCUS_TUNING = {"subgrid": None, "aggregate": 3, "smooth": True, "coarse_sigma": 2.0}
 
 
 def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
@@ -364,6 +459,14 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     aggregate : int
         ``"lines"`` and ``"occlusion"``: radius (px) of the guided filter that
         aggregates the costs.
+    smooth : bool
+        ``"lines"`` and ``"occlusion"``: where the data leave a region's shear open
+        (smooth or texture-poor: the best shear's aggregated cost within a factor of two
+        of its median over the shears), choose by the confirmed coarse disparity of the
+        decimated light field
+        (the range's coarse pass at 1/2, 1/4 and 1/8 resolution, the finest that
+        confirms it), taken only as deep inside the region as its data reach (default
+        True; ``bench/README.md``, *Light fields*, measures it).
     coarse_sigma : float
         ``"coarse"``: low-pass of the coarse pass, px; its window is twice ``sigma``.
     fill : bool
@@ -417,8 +520,11 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     if select == "coarse":
         out = _select_coarse(v, lo, sigma, window, filters, t["coarse_sigma"], progress)
     else:
+        # called only where a region leaves the shear open: the coarse pass measured 8 s
+        # beside the refocusing's 20 s on a 9 x 9 scene of 512^2
+        prior = (lambda: _coarse_prior(v, filters)) if t["smooth"] else None
         out = _select_occlusion(v, lo, sigma, window, filters, subgrid, t["aggregate"],
-                                lines=select == "lines", progress=progress)
+                                lines=select == "lines", progress=progress, prior=prior)
     maps, valid, filled = _finish(out, sigma, fill, median)
     settings = {"shears": list(shifts), "select": select, "sigma": sigma, "window": window,
                 "filters": filters, "fill": fill, "median": median,
@@ -568,7 +674,7 @@ def _subgrid_estimates(sv, subgrid, sigma, window, filters, lines):
 
 
 def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate, lines,
-                      progress=None) -> dict:
+                      progress=None, prior=None) -> dict:
     """Per shear, the best of the sub-grids and shifted windows; across shears, the
     smallest aggregated cost."""
     n = v.shape[0]
@@ -633,6 +739,8 @@ def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate, lines,
     guide = (guide - guide.min()) / (span if span > 0 else 1.0)
     if aggregate > 0:
         C = np.stack([_guided(c, guide, int(aggregate), 1e-3) for c in C])
+    if prior is not None:
+        C, _ = _prior_cost(C, lo, prior, aggregate)
     idx = C.argmin(0)
     disp = D[idx, rows, cols]
     err = np.where(np.isfinite(disp), E[idx, rows, cols], np.nan)

@@ -189,30 +189,27 @@ _OPEN_DECADES = float(np.log10(2.0))
 _PRIOR_DECADES = 1.0
 
 
-def _coarse_prior(views: np.ndarray, filters: str) -> tuple[np.ndarray, np.ndarray]:
-    """The confirmed coarse disparity at full resolution, for the smooth regions.
+def _coarse_prior(views: np.ndarray, filters: str) -> list:
+    """The confirmed coarse disparities at full resolution, for the smooth regions.
 
-    The coarse pass of :func:`estimate_shear_range` at every level ``k`` in (2, 4, 8)
-    that leaves at least 16 px (:func:`_confirmed`: the grid's, the centre row's and
-    the centre column's estimates agree), each pixel taking the finest level that
-    confirms it; its value times ``k`` (px per view), repeated over the ``k x k``
-    full-resolution pixels of its coarse pixel.
+    The coarse pass of :func:`estimate_shear_range` at every level ``k`` in (32, 16, 8,
+    4, 2) that leaves at least 16 px (:func:`_confirmed`: the grid's, the centre row's and
+    the centre column's estimates agree), each value times ``k`` (px per view) and
+    repeated over the ``k x k`` full-resolution pixels of its coarse pixel.
 
     Returns
     -------
-    prior : ndarray, shape (H, W)
-        The coarse disparity (px per view), NaN where no level confirms one.
-    reach : ndarray, shape (H, W)
-        How far (px) that estimate's data reach: ``_COARSE_SUPPORT * k`` (0 where none).
+    list of (ndarray, float)
+        Coarsest level first: its disparity, shape (H, W), NaN where it confirms none,
+        and how far (px) its data reach, ``_COARSE_SUPPORT * k``.
     """
     n = views.shape[0]
     H, W = views.shape[-2:]
     m = min(n, 5)
     c0 = (n - m) // 2
     v = views[c0:c0 + m, c0:c0 + m]
-    prior = np.full((H, W), np.nan)
-    reach = np.zeros((H, W))
-    for k in (2, 4, 8):
+    levels = []
+    for k in (32, 16, 8, 4, 2):
         if min(H, W) // k < 16:
             continue
         vk = _lowpass(v, 0.5 * k)[..., k // 2::k, k // 2::k]
@@ -221,51 +218,71 @@ def _coarse_prior(views: np.ndarray, filters: str) -> tuple[np.ndarray, np.ndarr
         # full-resolution pixel i lies in the coarse pixel centred nearest to it
         iy = np.clip(np.round((np.arange(H) - k // 2) / k).astype(int), 0, d.shape[0] - 1)
         ix = np.clip(np.round((np.arange(W) - k // 2) / k).astype(int), 0, d.shape[1] - 1)
-        up = d[np.ix_(iy, ix)]
-        new = ~np.isfinite(prior) & np.isfinite(up)
-        prior[new] = up[new]
-        reach[new] = _COARSE_SUPPORT * k
-    return prior, reach
+        levels.append((d[np.ix_(iy, ix)], _COARSE_SUPPORT * k))
+    return levels
 
 
-def _prior_cost(C: np.ndarray, lo: np.ndarray, prior, aggregate: int) -> tuple:
+def _prior_cost(C: np.ndarray, lo: np.ndarray, prior, aggregate: int,
+                data: np.ndarray) -> tuple:
     """The cost of the shears ``lo`` (``C``, shape (S, H, W), aggregated log model
     errors) with the coarse disparity added where the data leave the shear open.
 
-    Open: the best shear's cost is within :data:`_OPEN_DECADES` of the pixel's median
-    over the shears (a smooth or texture-poor region: every shear fits about as well),
-    and so are most of its neighbours' within the aggregation's box (a region, not a
-    pixel between two surfaces).  A coarse estimate counts only as deep inside the open
-    region as its data reach (it does not mix in the textured surfaces around it);
-    every open pixel takes the nearest such estimate of its own region.  There the cost
-    grows by :data:`_PRIOR_DECADES` per px per view between the shear and that
-    estimate.
-    ``prior()`` gives the coarse disparity and its reach (:func:`_coarse_prior`); it is
-    called only where some open region is as deep as the finest level's reach.
+    Open: a pixel with an admissible estimate at some shear (``data``, bool (H, W))
+    whose best shear's cost is within :data:`_OPEN_DECADES` of its median over the
+    shears (a smooth or texture-poor surface: every shear fits about as well), as is
+    that of most of its neighbours within the aggregation's box (a region, not a pixel
+    between two surfaces).  A coarse estimate counts only as deep inside the open region
+    as its data reach (the image's edge counting as outside: it does not mix in the
+    textured surfaces around it), of those the coarsest level's, and a finer level's
+    only where it agrees with the coarser level's estimate (where that has one) within
+    half a shear; every open pixel of a region with such estimates takes the nearest of
+    them.  There the cost grows by :data:`_PRIOR_DECADES` per px per view between the
+    shear and that estimate: a shear far from it cannot win, and between the two
+    shears around it the data still decide.  ``prior()`` gives the coarse levels
+    (:func:`_coarse_prior`); it is called only where some open region is as deep as the
+    finest level's reach.
 
-    Returns ``(C, open)``: the cost, shape (S, H, W), and the open pixels (bool, (H, W)).
+    Returns ``(C, open)``: the cost, shape (S, H, W), and the pixels where the coarse
+    disparity entered it (bool, (H, W)).
     """
     from scipy.ndimage import distance_transform_edt, label, uniform_filter
 
     spread = np.median(C, 0) - C.min(0)
+    own = data & (spread < _OPEN_DECADES)
     box = 2 * int(aggregate) + 1
-    flat = uniform_filter((spread < _OPEN_DECADES).astype(float), box,
-                          mode="nearest") >= 0.5
-    depth = distance_transform_edt(flat)
+    flat = data & (uniform_filter(own.astype(float), box, mode="constant") >= 0.5)
+    # distance to the nearest pixel outside the open region, the image's edge outside
+    depth = distance_transform_edt(np.pad(flat, 1))[1:-1, 1:-1]
+    none = np.zeros_like(flat)
     if not (depth >= _COARSE_SUPPORT * 2).any():
         # no open region as deep as the finest coarse level's reach: nothing to take
-        return C, np.zeros_like(flat)
-    p, reach = prior()
-    keep = np.isfinite(p) & (depth >= np.maximum(reach, 1.0))
+        return C, none
+    # per pixel the coarsest level whose data lie inside the open region: the one that
+    # pools the most data (a finer level confirms a few wrong estimates by chance there)
+    p = np.full(flat.shape, np.nan)
+    coarser = np.full(flat.shape, np.nan)
+    for d, reach in prior():
+        # a finer level's value that the coarser level's (where it has one) puts on
+        # another shear (more than half a shear off) is noise
+        off = np.abs(d - coarser) > 0.5
+        take = np.isnan(p) & np.isfinite(d) & (depth >= reach) & ~off
+        p[take] = d[take]
+        coarser = np.where(np.isfinite(coarser), coarser, d)
+    keep = np.isfinite(p)
     if not keep.any():
-        return C, np.zeros_like(flat)
-    # the nearest kept estimate of the pixel's own open region (another region, e.g.
-    # the strip along the image border where no shear has an estimate, takes none)
+        return C, none
+    # each open region takes the nearest kept estimate of its own (none, where it has
+    # none): one distance transform per region that has one
     regions, _ = label(flat)
-    near = tuple(distance_transform_edt(~keep, return_distances=False, return_indices=True))
-    flat &= regions[near] == regions
-    p = p[near]
-    return C + np.where(flat, _PRIOR_DECADES * np.abs(lo[:, None, None] - p), 0.0), flat
+    prior_map = np.full(flat.shape, np.nan)
+    for r in np.unique(regions[keep]):
+        inside = regions == r
+        near = tuple(distance_transform_edt(~(keep & inside), return_distances=False,
+                                            return_indices=True))
+        prior_map[inside] = p[near][inside]
+    used = np.isfinite(prior_map)
+    pen = _PRIOR_DECADES * np.abs(lo[:, None, None] - np.nan_to_num(prior_map))
+    return C + np.where(used, pen, 0.0), used
 
 
 def _confirmed(vk: np.ndarray, filters: str) -> tuple[np.ndarray, np.ndarray]:
@@ -463,10 +480,11 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         ``"lines"`` and ``"occlusion"``: where the data leave a region's shear open
         (smooth or texture-poor: the best shear's aggregated cost within a factor of two
         of its median over the shears), choose by the confirmed coarse disparity of the
-        decimated light field
-        (the range's coarse pass at 1/2, 1/4 and 1/8 resolution, the finest that
-        confirms it), taken only as deep inside the region as its data reach (default
-        True; ``bench/README.md``, *Light fields*, measures it).
+        decimated light field (the range's coarse pass at 1/32 ... 1/2 resolution: the
+        coarsest level whose data lie inside the region, a finer one only where it
+        agrees with the coarser within half a shear), the rest of the region taking the
+        nearest such value (default True; ``bench/README.md``, *Light fields*, measures
+        it).
     coarse_sigma : float
         ``"coarse"``: low-pass of the coarse pass, px; its window is twice ``sigma``.
     fill : bool
@@ -482,8 +500,9 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     progress : callable, optional
         Called as ``progress(done, total)`` after each shear.
     **tuning
-        The choices' own tuning, ``subgrid``, ``aggregate``, ``coarse_sigma`` (above;
-        defaults :data:`REFOCUS_TUNING`); any other keyword is refused.
+        The choices' own tuning, ``subgrid``, ``aggregate``, ``smooth``,
+        ``coarse_sigma`` (above; defaults :data:`REFOCUS_TUNING`); any other keyword is
+        refused.
 
     Returns
     -------
@@ -740,7 +759,7 @@ def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate, lines,
     if aggregate > 0:
         C = np.stack([_guided(c, guide, int(aggregate), 1e-3) for c in C])
     if prior is not None:
-        C, _ = _prior_cost(C, lo, prior, aggregate)
+        C, _ = _prior_cost(C, lo, prior, aggregate, fin.any(0))
     idx = C.argmin(0)
     disp = D[idx, rows, cols]
     err = np.where(np.isfinite(disp), E[idx, rows, cols], np.nan)

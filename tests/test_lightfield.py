@@ -855,3 +855,25 @@ def test_textured_scenes_do_not_call_on_the_coarse_disparity():
     assert calls == []
     for k in ("disparity", "confidence", "shear", "model_error"):
         np.testing.assert_array_equal(on[k], off[k])
+
+
+def test_each_open_region_takes_the_coarse_disparity_of_its_own():
+    """Two open regions (every shear costs the same) either side of a textured column
+    (the data fix shear 0 there): each open pixel takes the nearest kept coarse
+    estimate of its own region, though the other region's lies nearer (the review's
+    case: with the nearest estimate of the whole image, 17 columns of the left region
+    took none and fell back to a tie), and the column keeps its own shear."""
+    from gridflow.estimator.lightfield import _prior_cost
+
+    H = W = 80
+    lo = np.arange(-3, 4)
+    C = np.zeros((lo.size, H, W))
+    C[:, :, 40:42] = np.abs(lo)[:, None, None] * 1.0
+    p = np.full((H, W), np.nan)
+    p[:, 10:13] = 2.0                   # the left region's only estimates
+    p[:, 43:46] = -2.0                  # the right region's, 8 px from the left's col 35
+    C2, used = _prior_cost(C, lo, lambda: [(p, 1.0)], 0, np.ones((H, W), bool))
+    assert used[:, :40].all() and used[:, 42:].all() and not used[:, 40:42].any()
+    idx = C2.argmin(0)
+    assert (lo[idx[:, :40]] == 2).all() and (lo[idx[:, 42:]] == -2).all()
+    assert (lo[idx[:, 40:42]] == 0).all()

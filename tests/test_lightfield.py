@@ -811,8 +811,9 @@ def test_no_pixel_of_a_smooth_wall_is_off_by_a_pixel():
     the former default chose among them by noise: 13941 of 48119 scored pixels off by
     more than 1 px (the wall's 26421: 53 %), up to 4.5 px.  The default now takes the
     shear of such an open region from the confirmed coarse disparity (the coarsest
-    level whose data lie inside the wall), which leaves no wall pixel off by more than 1 px (the issue's bound), outside
-    a 3-px band around the depth edges and the benchmark's 15-px border; measured: 0,
+    level whose data lie inside the wall), which leaves no wall pixel off by more than
+    1 px (the issue's bound), outside a 3-px band around the depth edges and the
+    benchmark's 15-px border; measured: 0,
     the largest error 0.50 px.  The former choice, run beside it, must fail that bound
     (so the scene tests the step), and the textured plane must not have more pixels off
     by more than 1 px than it had (measured 2 both ways, on the 15-px border where their

@@ -228,21 +228,26 @@ def _prior_cost(C: np.ndarray, lo: np.ndarray, prior, aggregate: int,
     errors) with the coarse disparity added where the data leave the shear open.
 
     Open: a pixel with an admissible estimate at some shear (``data``, bool (H, W))
-    whose best shear's cost is within :data:`_OPEN_DECADES` of its median over the
-    shears (a smooth or texture-poor surface: every shear fits about as well), as is
-    that of most of its neighbours within the aggregation's box (a region, not a pixel
-    between two surfaces).  A coarse estimate counts only as deep inside the open region
-    as its data reach (the image's edge counting as outside: it does not mix in the
-    textured surfaces around it), of those the coarsest level's, and a finer level's
-    only where it agrees with the coarser level's estimate (where that has one) within
-    half a shear; every open pixel of a region with such estimates takes the nearest of
-    them.  There the cost grows by :data:`_PRIOR_DECADES` per px per view between the
-    shear and that estimate: a shear far from it cannot win, and between the two
-    shears around it the data still decide.  ``prior()`` gives the coarse levels
+    at least half of whose aggregation box (itself among them; beyond the image counts
+    as not open) has its best shear's cost within :data:`_OPEN_DECADES` of its median
+    over the shears (a smooth or texture-poor surface: every shear fits about as well;
+    a region, not a pixel between two surfaces).
+
+    A coarse estimate counts only as deep inside the open region as its data reach
+    (the image's edge counting as outside: it does not mix in the textured surfaces
+    around it), of those the coarsest level's, and a finer level's only where it agrees
+    within half a shear with the raw estimate of the coarsest level that has one there;
+    each such estimate is replaced by the mean of those of its level around it (a
+    Gaussian of half the level's reach), and every open pixel of a region with such
+    estimates takes the nearest of them.  There the cost grows by
+    :data:`_PRIOR_DECADES` per px per view between the shear and that estimate: a shear
+    a step or more further from it than another cannot win (an open pixel's costs lie
+    within 0.3 decade); between the two shears around it, the nearer wins unless the
+    estimate lies near their middle.  ``prior()`` gives the coarse levels
     (:func:`_coarse_prior`); it is called only where some open region is as deep as the
     finest level's reach.
 
-    Returns ``(C, open)``: the cost, shape (S, H, W), and the pixels where the coarse
+    Returns ``(C, used)``: the cost, shape (S, H, W), and the pixels where the coarse
     disparity entered it (bool, (H, W)).
     """
     from scipy.ndimage import distance_transform_edt, label, uniform_filter
@@ -271,9 +276,10 @@ def _prior_cost(C: np.ndarray, lo: np.ndarray, prior, aggregate: int,
             # Gaussian of half the level's reach: its 2 sigma stay inside the region
             # (they lie at least the reach deep), and the coarse estimates' own noise
             # (a few tenths of a px per view, enough to tip the nearest shear) averages
-            d = (_gauss(np.where(take, d, 0.0), reach / 2)
-                 / np.maximum(_gauss(take.astype(float), reach / 2), 1e-12))
-        p[take] = d[take]
+            mean = (_gauss(np.where(take, d, 0.0), reach / 2)
+                    / np.maximum(_gauss(take.astype(float), reach / 2), 1e-12))
+            p[take] = mean[take]
+        # the finer levels are checked against this level's own (not averaged) values
         coarser = np.where(np.isfinite(coarser), coarser, d)
     keep = np.isfinite(p)
     if not keep.any():

@@ -863,9 +863,9 @@ def test_textured_scenes_do_not_call_on_the_coarse_disparity():
 def test_each_open_region_takes_the_coarse_disparity_of_its_own():
     """Two open regions (every shear costs the same) either side of a textured column
     (the data fix shear 0 there): each open pixel takes the nearest kept coarse
-    estimate of its own region, though the other region's lies nearer (the review's
-    case: with the nearest estimate of the whole image, 17 columns of the left region
-    took none and fell back to a tie), and the column keeps its own shear."""
+    estimate of its own region, though the other region's lies nearer (with the nearest
+    estimate of the whole image, columns 28-39 of the left region took none and fell
+    back to a tie at shear -3), and the column keeps its own shear."""
     from gridflow.estimator.lightfield import _prior_cost
 
     H = W = 80
@@ -880,3 +880,27 @@ def test_each_open_region_takes_the_coarse_disparity_of_its_own():
     idx = C2.argmin(0)
     assert (lo[idx[:, :40]] == 2).all() and (lo[idx[:, 42:]] == -2).all()
     assert (lo[idx[:, 40:42]] == 0).all()
+
+
+def test_a_finer_level_is_checked_against_the_coarser_levels_own_estimates():
+    """Two open regions: the coarse level has estimates in the left one only, the finer
+    level in the right one only.  The finer level's are checked against the coarse
+    level's own estimates where it has them, and here it has none: the right region
+    takes its finer estimates (the coarse level's averaged map, read as its estimates,
+    was 0 there and turned them away, review)."""
+    from gridflow.estimator.lightfield import _prior_cost
+
+    H = W = 80
+    lo = np.arange(-3, 4)
+    C = np.zeros((lo.size, H, W))
+    C[:, :, 40:42] = np.abs(lo)[:, None, None] * 1.0
+    coarse = np.full((H, W), np.nan)
+    coarse[:, 10:13] = 2.0
+    fine = np.full((H, W), np.nan)
+    fine[:, 60:63] = -2.0
+    fine[:, 11] = 2.2                   # agrees with the coarse level: not needed there
+    C2, used = _prior_cost(C, lo, lambda: [(coarse, 1.0), (fine, 1.0)], 0,
+                           np.ones((H, W), bool))
+    idx = C2.argmin(0)
+    assert used[:, 42:].all()
+    assert (lo[idx[:, 42:]] == -2).all() and (lo[idx[:, :40]] == 2).all()

@@ -904,3 +904,31 @@ def test_a_finer_level_is_checked_against_the_coarser_levels_own_estimates():
     idx = C2.argmin(0)
     assert used[:, 42:].all()
     assert (lo[idx[:, 42:]] == -2).all() and (lo[idx[:, :40]] == 2).all()
+
+
+def test_pixels_without_an_estimate_are_not_an_open_region():
+    """The strip along the image border where no shear has an admissible estimate costs
+    the same at every shear, but it has no data to leave open: it takes no coarse
+    disparity, and it does not make the region beside it deeper (the image's edge
+    bounds a region's depth: the cube's border strip alone once called the coarse
+    pass, review)."""
+    from gridflow.estimator.lightfield import _prior_cost
+
+    H = W = 80
+    lo = np.arange(-3, 4)
+    C = np.zeros((lo.size, H, W))
+    C[:, :, 20:] = np.abs(lo)[:, None, None] * 1.0      # textured beyond column 20
+    data = np.ones((H, W), bool)
+    data[:, :12] = False                                 # no estimate at any shear
+    calls = []
+    levels = [(np.full((H, W), 2.0), 1.0)]
+    C2, used = _prior_cost(C, lo, lambda: calls.append(1) or levels, 0, data)
+    # the open columns 12..19 are 8 px wide: depth 4 < the finest level's reach, 11
+    assert calls == [] and not used.any()
+    data[:] = True                                       # the same strip with data
+    C2, used = _prior_cost(C, lo, lambda: calls.append(1) or levels, 0, data)
+    # columns 0..19 open, depth 10 from the image's edge: still short of 11
+    assert calls == [] and not used.any()
+    C[:, :, 20:24] = 0.0                                 # 24 px wide: depth 12
+    C2, used = _prior_cost(C, lo, lambda: calls.append(1) or levels, 0, data)
+    assert calls == [1] and used[:, :24].all() and not used[:, 24:].any()

@@ -506,9 +506,9 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         of its median over the shears), choose by the confirmed coarse disparity of the
         decimated light field (the range's coarse pass at 1/32 ... 1/2 resolution: the
         coarsest level whose data lie inside the region, a finer one only where it
-        agrees with the coarser within half a shear), the rest of the region taking the
-        nearest such value (default True; ``bench/README.md``, *Light fields*, measures
-        it).
+        agrees within half a shear with a coarser one's estimate; each averaged over
+        half its reach), the rest of the region taking the nearest such value (default
+        True; ``bench/README.md``, *Light fields*, measures it; :func:`_prior_cost`).
     coarse_sigma : float
         ``"coarse"``: low-pass of the coarse pass, px; its window is twice ``sigma``.
     fill : bool

@@ -142,18 +142,13 @@ def estimate_shear_range(views: np.ndarray, *, filters: str = DEFAULTS["filters"
     v = np.asarray(views, dtype=np.float64)
     if v.ndim != 4 or v.shape[0] != v.shape[1] or v.shape[0] % 2 == 0:
         raise InputError(f"views must have shape (n, n, H, W) with n odd, got {v.shape}")
-    n = v.shape[0]
     H, W = v.shape[-2:]
-    # the camera filters need 5 views along each axis: the central 5 x 5 (or all of 3 x 3)
-    m = min(n, 5)
-    c0 = (n - m) // 2
-    v = v[c0:c0 + m, c0:c0 + m]
+    v = _central(v)
     ks = [k for k in (8, 4, 2, 1) if min(H, W) // k >= 32] or [1]
     levels = []
     chosen = None
     for k in ks:
-        vk = v if k == 1 else _lowpass(v, 0.5 * k)[..., k // 2::k, k // 2::k]
-        d, confirmed = _confirmed(np.ascontiguousarray(vk), filters)
+        d, confirmed = _confirmed(_decimated(v, k), filters)
         estimated = int(np.isfinite(d).sum())
         d = d[confirmed]
         if d.size < 16:
@@ -189,6 +184,24 @@ _OPEN_DECADES = float(np.log10(2.0))
 _PRIOR_DECADES = 1.0
 
 
+def _central(views: np.ndarray) -> np.ndarray:
+    """The views the coarse pass uses, shape (m, m, H, W): the camera filters need 5
+    views along each axis, so the central 5 x 5 of ``views`` (n, n, H, W), or all of
+    3 x 3."""
+    m = min(views.shape[0], 5)
+    c0 = (views.shape[0] - m) // 2
+    return views[c0:c0 + m, c0:c0 + m]
+
+
+def _decimated(views: np.ndarray, k: int) -> np.ndarray:
+    """``views`` (m, m, H, W) low-passed (a Gaussian of ``k / 2`` px) and decimated by
+    ``k`` in x and y (which divides every disparity by ``k``); contiguous.  ``k = 1``:
+    the views themselves."""
+    if k == 1:
+        return np.ascontiguousarray(views)
+    return np.ascontiguousarray(_lowpass(views, 0.5 * k)[..., k // 2::k, k // 2::k])
+
+
 def _coarse_prior(views: np.ndarray, filters: str) -> list:
     """The confirmed coarse disparities at full resolution, for the smooth regions.
 
@@ -203,17 +216,13 @@ def _coarse_prior(views: np.ndarray, filters: str) -> list:
         Coarsest level first: its disparity, shape (H, W), NaN where it confirms none,
         and how far (px) its data reach, ``_COARSE_SUPPORT * k``.
     """
-    n = views.shape[0]
     H, W = views.shape[-2:]
-    m = min(n, 5)
-    c0 = (n - m) // 2
-    v = views[c0:c0 + m, c0:c0 + m]
+    v = _central(views)
     levels = []
     for k in (32, 16, 8, 4, 2):
         if min(H, W) // k < 16:
             continue
-        vk = _lowpass(v, 0.5 * k)[..., k // 2::k, k // 2::k]
-        d, confirmed = _confirmed(np.ascontiguousarray(vk), filters)
+        d, confirmed = _confirmed(_decimated(v, k), filters)
         d = np.where(confirmed, d * k, np.nan)
         # full-resolution pixel i lies in the coarse pixel centred nearest to it
         iy = np.clip(np.round((np.arange(H) - k // 2) / k).astype(int), 0, d.shape[0] - 1)
@@ -298,15 +307,15 @@ def _prior_cost(C: np.ndarray, lo: np.ndarray, prior, aggregate: int,
     return C + np.where(used, pen, 0.0), used
 
 
-def _gauss(a: np.ndarray, sigma: float) -> np.ndarray:
-    """``a`` smoothed by a Gaussian of ``sigma`` px in x and y (truncated at 4 sigma,
-    zeros beyond the image; taps made here, as :func:`_fill` does, for the same bits on
-    every machine)."""
+def _gauss(a: np.ndarray, sigma: float, mode: str = "constant") -> np.ndarray:
+    """``a`` (H, W) smoothed by a Gaussian of ``sigma`` px in x and y, truncated at 4
+    sigma, edges by scipy's ``mode`` (default zeros beyond the image): scipy's
+    ``gaussian_filter`` with the kernel made here, since scipy builds it with numpy's
+    SIMD exp, whose bits depend on the CPU."""
     from scipy.ndimage import correlate1d
 
     g = gaussian_taps(float(sigma), int(4.0 * sigma + 0.5))
-    return correlate1d(correlate1d(a, g, axis=0, mode="constant"), g, axis=1,
-                       mode="constant")
+    return correlate1d(correlate1d(a, g, axis=0, mode=mode), g, axis=1, mode=mode)
 
 
 def _confirmed(vk: np.ndarray, filters: str) -> tuple[np.ndarray, np.ndarray]:
@@ -662,19 +671,12 @@ def _fill(disp, valid, inside, sigma):
 
     Returns ``(disparity, filled)``, both shape (H, W).
     """
-    from scipy.ndimage import correlate1d, distance_transform_edt
+    from scipy.ndimage import distance_transform_edt
 
     H, W = disp.shape
     s = min(2 * float(sigma), float(max(H, W)))
-    # scipy's gaussian_filter (truncated at 4 sigma), with the kernel made here: scipy
-    # builds it with numpy's SIMD exp, whose bits depend on the CPU
-    g = gaussian_taps(s, int(4.0 * s + 0.5))
-
-    def smooth(a):
-        return correlate1d(correlate1d(a, g, axis=0, mode="nearest"), g, axis=1,
-                           mode="nearest")
-    num = smooth(np.where(valid, disp, 0.0))
-    den = smooth(valid.astype(float))
+    num = _gauss(np.where(valid, disp, 0.0), s, mode="nearest")
+    den = _gauss(valid.astype(float), s, mode="nearest")
     conv = ~valid & inside & (den > 1e-3)
     out = np.where(conv, num / np.where(den > 0, den, 1.0), disp)
     rest = ~(valid | conv)

@@ -955,22 +955,20 @@ def test_a_sub_grid_is_refused_only_where_its_own_views_moved_the_edge_in():
     assert np.abs(e["disparity"] - truth)[rows][:, band].max() < 0.1
 
 
-def test_a_finer_level_must_agree_with_every_coarser_level():
-    """A finer level's chance value (0.3 on a patch of an open region at 1.0) that the
-    coarsest level's poor estimate (0.7) lets pass but the next level's (1.1) does not
-    is refused: the patch takes the nearest kept value of its region, on the shear of
-    1 (with the coarsest level alone asked it took 0.3, the shear of 0)."""
+def test_a_coarse_value_its_level_confirms_alone_is_not_taken():
+    """A finer level's value of 0.3 (the shear of 0) confirmed on a 4 x 4 patch amid
+    pixels the level leaves unconfirmed, with no coarser estimate to check it against, is
+    a chance agreement: it holds less than half of its Gaussian's weight, and the open
+    region takes its neighbourhood's kept value, 1.0 (the former code took 0.3 on and
+    around the patch, as on the 512^2 wall)."""
     from gridflow.estimator.lightfield import _prior_cost
 
-    H = W = 80
+    H = W = 120
     lo = np.arange(-3, 4)
     C = np.zeros((lo.size, H, W))
-    coarsest = np.full((H, W), 0.7)
-    middle = np.full((H, W), 1.1)
     fine = np.full((H, W), 1.0)
-    fine[35:45, 35:45] = 0.3
-    # the two coarser levels reach further than the region is deep (40 px): not taken
-    levels = [(coarsest, 100.0), (middle, 60.0), (fine, 2.0)]
-    C2, used = _prior_cost(C, lo, lambda: levels, 0, np.ones((H, W), bool))
+    fine[40:80, 40:80] = np.nan                          # unconfirmed
+    fine[58:62, 58:62] = 0.3                             # but for a chance patch
+    C2, used = _prior_cost(C, lo, lambda: [(fine, 8.0)], 0, np.ones((H, W), bool))
     assert used.all()
     assert (lo[C2.argmin(0)] == 1).all()

@@ -247,9 +247,10 @@ def _prior_cost(C: np.ndarray, lo: np.ndarray, prior, aggregate: int,
     around it), of those the coarsest level's, and a finer level's only where it agrees
     within half a shear with the raw estimate of the coarsest level that has one there;
     each such estimate is replaced by the mean of those of its level around it (a
-    Gaussian of half the level's reach) and kept where they hold at least half of that
-    Gaussian's weight, and every open pixel of a region with such estimates takes the
-    nearest of them.  There the cost grows by
+    Gaussian of half the level's reach); a level's estimate counts only where its
+    estimates hold at least half of that Gaussian's weight around it (one it confirms
+    alone is a chance agreement), and every open pixel of a region with such estimates
+    takes the nearest of them.  There the cost grows by
     :data:`_PRIOR_DECADES` per px per view between the shear and that estimate: a shear
     a step or more further from it than another cannot win (an open pixel's costs lie
     within 0.3 decade); between the two shears around it, the nearer wins unless the
@@ -280,23 +281,26 @@ def _prior_cost(C: np.ndarray, lo: np.ndarray, prior, aggregate: int,
         # a finer level's value that the coarser level's (where it has one) puts on
         # another shear (more than half a shear off) is noise
         off = np.abs(d - coarser) > 0.5
-        take = np.isnan(p) & np.isfinite(d) & (depth >= reach) & ~off
+        # A value counts only where the level's estimates (those not turned away)
+        # hold at least half of the weight of a Gaussian of half its reach around it:
+        # a value the level confirms alone, among pixels it leaves unconfirmed, is a
+        # chance agreement (a 1/4 level's 0.32 px per view on the 512^2 wall at 1.0,
+        # where no coarser level had an estimate to check it against, put 900 pixels
+        # on the shear of 0)
+        own = np.isfinite(d) & ~off
+        supported = own & (_gauss(own.astype(float), reach / 2) >= 0.5)
+        take = np.isnan(p) & supported & (depth >= reach)
         if take.any():
-            # each kept value the mean of the kept values around it, weighted by a
-            # Gaussian of half the level's reach: its 2 sigma stay inside the region
-            # (they lie at least the reach deep), and the coarse estimates' own noise
-            # (a few tenths of a px per view, enough to tip the nearest shear) averages.
-            # It counts only where kept values hold at least half that Gaussian's
-            # weight: a value the level confirms alone, among pixels it leaves
-            # unconfirmed, is a chance agreement (a 1/4 level's 0.32 px per view on the
-            # 512^2 wall at 1.0, where no coarser level had an estimate to check it
-            # against, put 900 pixels on the shear of 0)
-            support = _gauss(take.astype(float), reach / 2)
-            mean = _gauss(np.where(take, d, 0.0), reach / 2) / np.maximum(support, 1e-12)
-            take &= support >= 0.5
+            # each kept value the mean of the kept values around it, weighted by the
+            # same Gaussian: its 2 sigma stay inside the region (they lie at least the
+            # reach deep), and the coarse estimates' own noise (a few tenths of a px
+            # per view, enough to tip the nearest shear) averages
+            mean = (_gauss(np.where(take, d, 0.0), reach / 2)
+                    / np.maximum(_gauss(take.astype(float), reach / 2), 1e-12))
             p[take] = mean[take]
-        # the finer levels are checked against this level's own (not averaged) values
-        coarser = np.where(np.isfinite(coarser), coarser, d)
+        # the finer levels are checked against this level's own (not averaged)
+        # values, its chance agreements left out
+        coarser = np.where(np.isfinite(coarser), coarser, np.where(supported, d, np.nan))
     keep = np.isfinite(p)
     if not keep.any():
         return C, none
@@ -525,8 +529,8 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         decimated light field (the range's coarse pass at 1/32 ... 1/2 resolution: the
         coarsest level whose data lie inside the region, a finer one only where it
         agrees within half a shear with a coarser one's estimate; each averaged over
-        half its reach, where the level confirms at least half of the pixels around
-        it), the rest of the region taking the nearest such value (default
+        half its reach, each counting only where the level confirms at least half
+        of the pixels around it), the rest of the region taking the nearest such value (default
         True; ``bench/README.md``, *Light fields*, measures it; :func:`_prior_cost`).
     coarse_sigma : float
         ``"coarse"``: low-pass of the coarse pass, px; its window is twice ``sigma``.
@@ -557,8 +561,9 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         the column's sub-grids at the chosen shear and the model error relative to its
         median of its positive values (floors: 1e-6 px, ``AGREE_FLOOR``, and nine
         decades below that median; where one of the two has no estimate, the
-        disagreement is the median of the others'), else ``-log10`` of the model error
-        relative to its median (``bench/README.md``, *Light fields*, ranks both against the errors);
+        disagreement is the median of the others', 1 px where no pixel has both),
+        else ``-log10`` of the model error relative to its median (``bench/README.md``,
+        *Light fields*, ranks both against the errors);
         ``filled``: 1 where the value was filled from the neighbours (see ``fill``),
         else 0; with ``select="coarse"`` also ``coarse``: the coarse disparity.
         ``interior``: the pixels with a value, an admissible estimate of their own

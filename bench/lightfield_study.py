@@ -17,7 +17,9 @@ two-layer scenes of exact disparity (bands 10 px high with 12 px gaps, and thin 
 with 8 px gaps, 9 x 9 views, 192^2, foreground and background 2 px per view apart), a
 smooth wall (43 % of the image, faintly shaded, at +1 px per view) and a textured plane
 slanted from -3 to +2.4 px per view through it (9 x 9 views, 256^2, 8 bit, noise of 4
-grey levels), the
+grey levels), a fine periodic grid (period 4 px, at -1.5 px per view, so that +2.5 fits it as
+well but for a faint shading) behind a textured box at +2.5 (9 x 9 views, 192^2, 8 bit,
+the same noise), the
 POV-Ray cube as a 5 x 5 light field (-0.6 .. 3.0 px per view; rendered once into
 ``--cache``), and any HCI scene given.  Scores: the HCI benchmark's MSE x 100 and
 BadPix(0.07) by its toolkit's rule (:func:`gridflow.metrics.hci_metrics`), the
@@ -58,10 +60,12 @@ DEFAULT_STEP = STEPS[4][0]
 
 
 def synthetic_scenes() -> dict:
-    """``{name: (views (9, 9, S, S), disparity (S, S))}``: the two-layer scenes (S = 192)
-    and a smooth wall with a slanted textured plane through it (S = 256, 8-bit, sensor
-    noise of 4 grey levels)."""
-    from gridflow.generators.lightfield import layered_views, smooth_wall_views
+    """``{name: (views (9, 9, S, S), disparity (S, S))}``: the two-layer scenes (S = 192),
+    a smooth wall with a slanted textured plane through it (S = 256, 8-bit, sensor
+    noise of 4 grey levels) and a periodic grid behind a box (S = 192, the same noise),
+    where a shear four steps from the right one fits the grid as well."""
+    from gridflow.generators.lightfield import (layered_views, periodic_views,
+                                                smooth_wall_views)
 
     bands = [(y, y + 10) for y in range(20, 170, 22)]
     stripes = [(y, y + 8) for y in range(20, 172, 16)]
@@ -69,7 +73,8 @@ def synthetic_scenes() -> dict:
                                         seed=3),
             "thin stripes": layered_views(n=9, size=192, d_fg=0.5, d_bg=-1.5,
                                           bands=stripes, seed=4),
-            "smooth wall": smooth_wall_views(n=9, size=256, shading=0.02, noise=4 / 255)}
+            "smooth wall": smooth_wall_views(n=9, size=256, shading=0.02, noise=4 / 255),
+            "periodic grid": periodic_views(n=9, size=192, noise=4 / 255)}
 
 
 def run_step(views: np.ndarray, how, shears) -> tuple[dict, float]:

@@ -509,8 +509,9 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         ``"lines"`` (1-D camera sub-grids along the centre row and column, shifted
         windows and a guided cost aggregation; for scenes with occlusions and thin
         structures), ``"occlusion"`` (the same with square sub-grids) or ``"coarse"``
-        (the shear nearest to a coarse disparity; for fine periodic texture, where a
-        wrong shear can alias).
+        (the shear nearest to a coarse disparity; meant for fine periodic texture,
+        where a wrong shear can alias: ``bench/README.md`` measures it worse than
+        ``"lines"`` on a periodic grid with little else).
     subgrid : int, optional
         ``"lines"`` and ``"occlusion"``: odd number of views across a camera sub-grid
         (square ones at the centre, edges and corners of the grid: nine of them on a

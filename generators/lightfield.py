@@ -1,5 +1,5 @@
-"""Static light fields with exact disparity: textured planes, two-layer scenes and a
-smooth wall in front of a slanted textured plane.
+"""Static light fields with exact disparity: textured planes, two-layer scenes, a
+smooth wall in front of a slanted textured plane and a periodic pattern behind a box.
 
 Each view is sampled from an analytic texture at the position its ray meets the surface
 (no interpolation, no noise), in the HCI convention: a centre-view pixel of disparity
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["plane_views", "layered_views", "smooth_wall_views"]
+__all__ = ["plane_views", "layered_views", "smooth_wall_views", "periodic_views"]
 
 
 def _texture(rng, mean: float, amp: float, freq: float, terms: int = 6):
@@ -178,3 +178,70 @@ def smooth_wall_views(n: int = 9, size: int = 256, d_range=(-3.0, 2.4), d_wall: 
     d_plane = d0 + slope * xc
     on_wall = (y >= y0) & (y < y1) & (x >= x0) & (x < x1) & (d_wall >= d_plane)
     return views, np.where(on_wall, d_wall, d_plane)
+
+
+def periodic_views(n: int = 9, size: int = 192, period: float = 4.0, d_bg: float = -1.5,
+                   d_box: float = 2.5, box=(0.3, 0.7), contrast: float = 0.1,
+                   shading: float = 0.04, wavelength: float = 60.0, noise: float = 0.0,
+                   bits: int | None = 8, seed: int = 0):
+    """A fine periodic pattern behind a textured box: where a shear a whole number of
+    periods per camera step away fits the pattern as well as the right one (aliasing).
+
+    The background is a fronto-parallel plane of disparity ``d_bg`` with a grid of
+    ``contrast * (sin(2 pi x / period) + sin(2 pi y / period)) / 2`` over a faint smooth
+    shading (``shading``: a product of sinusoids of ``wavelength`` px, what a low-pass
+    keeps of the scene).  Shifting each view ``(r, c)`` by ``Δ (c - cc), Δ (r - cc)`` with
+    ``Δ`` a multiple of ``period`` maps the grid onto itself, so at ``d_bg + Δ`` only the
+    shading tells the shears apart.  In front, a square box (rows and columns ``box``,
+    fractions of the image side) of disparity ``d_box`` with a random texture brings
+    ``d_bg + period`` (the default: 2.5 px per view) into the scene's range.  Exact
+    occlusion; optional Gaussian sensor noise, then quantisation to ``bits`` bits.
+
+    Parameters
+    ----------
+    n, size : int
+        Views per side (odd) and image side (px).
+    period : float
+        The grid's period, px.
+    d_bg, d_box : float
+        Disparity of the background and of the box (px per camera step).
+    box : (float, float)
+        First and last fraction of the image side the box covers, in x and y.
+    contrast, shading, wavelength : float
+        The grid's peak-to-peak intensity, the shading's amplitude and wavelength (px).
+    noise : float
+        Standard deviation of Gaussian noise added to every view (intensities 0..1).
+    bits : int or None
+        Quantise to this many bits (None: not at all).
+    seed : int
+        Texture and noise seed.
+
+    Returns
+    -------
+    views : ndarray, shape (n, n, size, size)
+    disparity : ndarray, shape (size, size)
+    """
+    rng = np.random.default_rng(seed)
+    tex = _texture(rng, 0.6, 0.06, 0.4)
+    cc = n // 2
+    y, x = np.mgrid[0:size, 0:size].astype(float)
+    b0, b1 = (int(f * size) for f in box)
+    views = np.empty((n, n, size, size))
+    for r in range(n):
+        for c in range(n):
+            dc, dr = c - cc, r - cc
+            xb, yb = x + d_bg * dc, y + d_bg * dr
+            grid = 0.35 + contrast * 0.5 * (np.sin(2 * np.pi * xb / period)
+                                             + np.sin(2 * np.pi * yb / period))
+            shade = shading * (np.sin(2 * np.pi * xb / wavelength)
+                               * np.cos(2 * np.pi * yb / wavelength))
+            xf, yf = x + d_box * dc, y + d_box * dr
+            on_box = (yf >= b0) & (yf < b1) & (xf >= b0) & (xf < b1)
+            views[r, c] = np.where(on_box, tex(xf, yf), grid + shade)
+    if noise > 0:
+        views = views + rng.normal(0.0, noise, views.shape)
+    if bits:
+        q = 2 ** bits - 1
+        views = np.round(np.clip(views, 0.0, 1.0) * q) / q
+    on_box = (y >= b0) & (y < b1) & (x >= b0) & (x < b1)
+    return views, np.where(on_box, d_box, d_bg)

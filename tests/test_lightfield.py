@@ -1004,3 +1004,31 @@ def test_admissible_takes_its_margin_per_axis():
     expect[4:H - 4, 10:W - 10] = True
     assert np.array_equal(np.isfinite(d), expect)
     assert np.array_equal(np.isfinite(err), expect)
+
+
+def test_the_periodic_grid_fits_a_shear_a_period_away_as_well():
+    """``periodic_views`` (noise-free, unquantised, no shading): at the background's
+    disparity (-2 px per view) and at -2 + period (+2) every sheared view shows the
+    centre view's grid on the background, exactly, away from the box and the border;
+    at -2 + period / 2 it does not (the shading, here 0, is what would tell the two
+    apart).  The disparity map is the box's inside the box and the background's
+    elsewhere."""
+    from gridflow.estimator.lightfield import shear
+    from gridflow.generators.lightfield import periodic_views
+
+    views, truth = periodic_views(n=5, size=96, period=4.0, d_bg=-2.0, d_box=2.0,
+                                  shading=0.0, bits=None)
+    box = np.zeros(truth.shape, bool)
+    box[28:67, 28:67] = True                             # 0.3 and 0.7 of 96 px
+    assert np.array_equal(truth, np.where(box, 2.0, -2.0))
+    # a shear of at most 2 moves the views by at most 4 px; the box's edge moves by
+    # at most 4 steps x 2 views = 8 px
+    away = np.zeros(truth.shape, bool)
+    away[8:88, 8:88] = True
+    away[19:76, 19:76] = False
+    assert away.sum() > 2000
+    centre = views[2, 2]
+    for s, fits in ((-2, True), (2, True), (0, False)):
+        sv = shear(views, s)
+        diff = np.abs(sv - centre).max(axis=(0, 1))
+        assert (diff[away] < 1e-12).all() == fits, s

@@ -146,9 +146,10 @@ def _add_estimate(sub) -> None:
                         "sub-grids along the centre row and column and shifted windows "
                         "('lines', the default: occlusions and thin structures), square "
                         "sub-grids ('occlusion'), or the shear nearest a coarse estimate "
-                        "('coarse': fine periodic texture, where a wrong shear can "
-                        "alias, and smooth surfaces without thin structures, where its "
-                        "wider window does better); docs/model.md")
+                        "('coarse': meant for fine periodic texture, where a wrong "
+                        "shear can alias, and smooth surfaces without thin structures, "
+                        "where its wider window does better; bench/README.md measures "
+                        "it worse than 'lines' on a periodic grid); docs/model.md")
     p.add_argument("--median", type=int, default=None, metavar="SIZE",
                    help="refocusing: a median of the disparity over SIZE x SIZE px after "
                         "the choice (default 3; 0: none): a pixel that disagrees with most of its "

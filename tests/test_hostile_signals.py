@@ -213,7 +213,8 @@ HCI_SIGNAL_TRIALS = 30
 def test_a_signal_at_random_times_during_generate_hci_leaves_no_partial_scene(tmp_path):
     """``gridflow generate --hci FOLDER`` (a folder output: 25 views and the truth) sent
     SIGTERM or SIGINT at a random time from its start to a quarter past its measured end,
-    30 times, each onto a new name: every time the folder is absent or a whole scene that
+    30 times (10 more against a duration measured again, should all fall on one side of
+    the end), each onto a new name: every time the folder is absent or a whole scene that
     loads, and nothing else is beside it (no temporary folder).  An absent folder comes
     with exit 130/143 (gridflow's handlers), or with Python's own status 1 where a SIGINT
     fell into the interpreter's start-up, before gridflow's code runs."""
@@ -223,16 +224,32 @@ def test_a_signal_at_random_times_during_generate_hci_leaves_no_partial_scene(tm
         return [sys.executable, "-m", "gridflow.bench.cli", "generate", "--height", "256",
                 "--width", "256", "--hci", str(folder)]
 
-    t0 = time.monotonic()
-    assert subprocess.run(command(tmp_path / "first"), cwd=ROOT,
-                          capture_output=True).returncode == 0
-    duration = time.monotonic() - t0
+    def measured(name):
+        # one uninterrupted run: how long the command takes under the machine's load now
+        t0 = time.monotonic()
+        assert subprocess.run(command(tmp_path / name), cwd=ROOT,
+                              capture_output=True).returncode == 0
+        return time.monotonic() - t0
+
+    duration = measured("first")
     whole = sorted(p.name for p in (tmp_path / "first").iterdir())
     rng = np.random.default_rng(2026)
     seen = {"absent": 0, "whole": 0, "start-up": 0}
-    for trial in range(HCI_SIGNAL_TRIALS):
+    trials = HCI_SIGNAL_TRIALS
+    trial = 0
+    while True:
+        if trial == trials:
+            if (seen["absent"] and seen["whole"]) or trials > HCI_SIGNAL_TRIALS:
+                break
+            # every signal fell on one side of the end: under the other tests' load the
+            # runs took longer (or shorter) than the one measured (CI, once: 29 absent, 1
+            # in the start-up).  That is the sampling, not the property: measure again
+            # and draw more
+            duration = measured("again")
+            trials += HCI_SIGNAL_TRIALS // 3
         folder = tmp_path / f"s{trial}"
         sig = (signal.SIGTERM, signal.SIGINT)[trial % 2]
+        trial += 1
         p = subprocess.Popen(command(folder), cwd=ROOT, stdout=subprocess.DEVNULL,
                              stderr=subprocess.PIPE, text=True)
         time.sleep(rng.uniform(0, 1.25 * duration))
@@ -254,7 +271,7 @@ def test_a_signal_at_random_times_during_generate_hci_leaves_no_partial_scene(tm
             assert p.returncode in (130, 143, -sig), (trial, p.returncode, err)
             seen["absent"] += 1
     assert seen["absent"] and seen["whole"], seen
-    tried("signal at a random time during generate --hci", HCI_SIGNAL_TRIALS)
+    tried("signal at a random time during generate --hci", trials)
 
 
 @pytest.mark.slow

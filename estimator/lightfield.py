@@ -16,7 +16,8 @@ pixels exactly, with no interpolation) and chooses, per pixel, one shear's estim
     fine periodic texture aliases (a shear far from the truth can then fit the data as
     well as the right one, which a choice by model error alone falls for).  The coarse
     pass's wide window carries a bright foreground's disparity over thin background
-    next to it (fattening).
+    next to it (fattening), and where the low-pass leaves little it does not help: on
+    the periodic grid of ``bench/README.md`` it does worse than ``"lines"``.
 ``select="occlusion"``
     For scenes with occlusions.  Per shear, the estimate is taken from whichever of
     (a) the camera sub-grids at the centre, edges and corners of the grid (on 9 x 9
@@ -245,7 +246,8 @@ def _prior_cost(C: np.ndarray, lo: np.ndarray, prior, aggregate: int,
     A coarse estimate counts only as deep inside the open region as its data reach
     (the image's edge counting as outside: it does not mix in the textured surfaces
     around it), of those the coarsest level's, and a finer level's only where it agrees
-    within half a shear with the raw estimate of the coarsest level that has one there;
+    within half a shear with the raw (supported) estimate of the coarsest level that has
+    one there;
     each such estimate is replaced by the mean of those of its level around it (a
     Gaussian of half the level's reach); a level's estimate counts only where its
     estimates hold at least half of that Gaussian's weight around it (one it confirms

@@ -114,7 +114,7 @@ def layered_views(n: int = 9, size: int = 96, d_fg: float = 0.5, d_bg: float = -
 def smooth_wall_views(n: int = 9, size: int = 256, d_range=(-3.0, 2.4), d_wall: float = 1.0,
                       wall=(0.15, 0.95, 0.2, 0.95), shading: float = 0.0,
                       wavelength: float = 120.0, noise: float = 0.0, bits: int | None = 8,
-                      seed: int = 0):
+                      seed: int = 0, bar=None):
     """A smooth wall and a textured plane slanted in x through it, as on HCI scenes with
     large texture-poor regions: a fronto-parallel rectangle of disparity ``d_wall`` shaded
     by at most ``shading`` (a product of sinusoids of ``wavelength`` px; 0: uniform), and
@@ -123,6 +123,8 @@ def smooth_wall_views(n: int = 9, size: int = 256, d_range=(-3.0, 2.4), d_wall: 
     disparity): the wall occludes the plane where the plane lies behind it, and the plane
     cuts through the wall where it comes nearer.  Exact occlusion; optional Gaussian
     sensor noise, then quantisation to ``bits`` bits, as an 8-bit camera's images.
+    Optionally a thin fronto-parallel bar in front (``bar``), textured as the plane with
+    its contrast scaled, the nearest of the three where its ray meets it.
 
     Parameters
     ----------
@@ -143,6 +145,10 @@ def smooth_wall_views(n: int = 9, size: int = 256, d_range=(-3.0, 2.4), d_wall: 
         Quantise to this many bits (None: not at all).
     seed : int
         Texture and noise seed.
+    bar : (int, int, int, int, float, float), optional
+        ``(x0, x1, y0, y1, d_bar, contrast)``: the bar's columns ``[x0, x1)`` and rows
+        ``[y0, y1)`` in the centre view (px), its disparity and its texture's contrast
+        relative to the plane's (``0.45 + contrast (texture - 0.45)``).
 
     Returns
     -------
@@ -170,6 +176,13 @@ def smooth_wall_views(n: int = 9, size: int = 256, d_range=(-3.0, 2.4), d_wall: 
             shade = 0.6 + shading * (np.sin(2 * np.pi * xf / wavelength)
                                      * np.cos(2 * np.pi * yf / wavelength))
             views[r, c] = np.where(on_wall, shade, plane)
+            if bar is not None:
+                bx0, bx1, by0, by1, d_bar, contrast = bar
+                xb, yb = x + d_bar * dc, y + d_bar * dr
+                on_bar = ((yb >= by0) & (yb < by1) & (xb >= bx0) & (xb < bx1)
+                          & (d_bar >= np.where(on_wall, d_wall, d_plane)))
+                views[r, c] = np.where(on_bar, 0.45 + contrast * (tex(xb, yb) - 0.45),
+                                       views[r, c])
     if noise > 0:
         views = views + rng.normal(0.0, noise, views.shape)
     if bits:
@@ -177,7 +190,12 @@ def smooth_wall_views(n: int = 9, size: int = 256, d_range=(-3.0, 2.4), d_wall: 
         views = np.round(np.clip(views, 0.0, 1.0) * q) / q
     d_plane = d0 + slope * xc
     on_wall = (y >= y0) & (y < y1) & (x >= x0) & (x < x1) & (d_wall >= d_plane)
-    return views, np.where(on_wall, d_wall, d_plane)
+    truth = np.where(on_wall, d_wall, d_plane)
+    if bar is not None:
+        bx0, bx1, by0, by1, d_bar, _ = bar
+        on_bar = (y >= by0) & (y < by1) & (x >= bx0) & (x < bx1) & (d_bar >= truth)
+        truth = np.where(on_bar, d_bar, truth)
+    return views, truth
 
 
 def periodic_views(n: int = 9, size: int = 192, period: float = 4.0, d_bg: float = -1.5,
@@ -188,7 +206,8 @@ def periodic_views(n: int = 9, size: int = 192, period: float = 4.0, d_bg: float
     periods per camera step away fits the pattern as well as the right one (aliasing).
 
     The background is a fronto-parallel plane of disparity ``d_bg`` with a grid of
-    ``contrast * (sin(2 pi x / period) + sin(2 pi y / period)) / 2`` over a faint smooth
+    ``0.35 + contrast * (sin(2 pi x / period) + sin(2 pi y / period)) / 2`` (within
+    ``contrast`` of 0.35) over a faint smooth
     shading (``shading``: a product of sinusoids of ``wavelength`` px, what a low-pass
     keeps of the scene).  Shifting each view ``(r, c)`` by ``Δ (c - cc), Δ (r - cc)`` with
     ``Δ`` a multiple of ``period`` maps the grid onto itself, so at ``d_bg + Δ`` only the
@@ -208,7 +227,8 @@ def periodic_views(n: int = 9, size: int = 192, period: float = 4.0, d_bg: float
     box : (float, float)
         First and last fraction of the image side the box covers, in x and y.
     contrast, shading, wavelength : float
-        The grid's peak-to-peak intensity, the shading's amplitude and wavelength (px).
+        The grid's amplitude (its intensity lies within ``contrast`` of 0.35), the
+        shading's amplitude and its wavelength (px).
     noise : float
         Standard deviation of Gaussian noise added to every view (intensities 0..1).
     bits : int or None
@@ -236,12 +256,13 @@ def periodic_views(n: int = 9, size: int = 192, period: float = 4.0, d_bg: float
             shade = shading * (np.sin(2 * np.pi * xb / wavelength)
                                * np.cos(2 * np.pi * yb / wavelength))
             xf, yf = x + d_box * dc, y + d_box * dr
-            on_box = (yf >= b0) & (yf < b1) & (xf >= b0) & (xf < b1)
+            # the box where its ray meets it first (the larger disparity is the nearer)
+            on_box = (yf >= b0) & (yf < b1) & (xf >= b0) & (xf < b1) & (d_box >= d_bg)
             views[r, c] = np.where(on_box, tex(xf, yf), grid + shade)
     if noise > 0:
         views = views + rng.normal(0.0, noise, views.shape)
     if bits:
         q = 2 ** bits - 1
         views = np.round(np.clip(views, 0.0, 1.0) * q) / q
-    on_box = (y >= b0) & (y < b1) & (x >= b0) & (x < b1)
+    on_box = (y >= b0) & (y < b1) & (x >= b0) & (x < b1) & (d_box >= d_bg)
     return views, np.where(on_box, d_box, d_bg)

@@ -1008,27 +1008,51 @@ def test_admissible_takes_its_margin_per_axis():
 
 def test_the_periodic_grid_fits_a_shear_a_period_away_as_well():
     """``periodic_views`` (noise-free, unquantised, no shading): at the background's
-    disparity (-2 px per view) and at -2 + period (+2) every sheared view shows the
-    centre view's grid on the background, exactly, away from the box and the border;
-    at -2 + period / 2 it does not (the shading, here 0, is what would tell the two
-    apart).  The disparity map is the box's inside the box and the background's
-    elsewhere."""
+    disparity (-1 px per view) and at -1 + period (+3) every sheared view shows the
+    centre view's grid on the background (to 1e-12), away from the box and the border;
+    at -1 + period / 2 (+1) it does not (the shading, here 0, is what would tell -1 and
+    +3 apart; with the sign of the disparity flipped, +1 and -3 would fit instead).
+    The disparity map is the box's inside the box and the background's elsewhere."""
     from gridflow.estimator.lightfield import shear
     from gridflow.generators.lightfield import periodic_views
 
-    views, truth = periodic_views(n=5, size=96, period=4.0, d_bg=-2.0, d_box=2.0,
+    views, truth = periodic_views(n=5, size=96, period=4.0, d_bg=-1.0, d_box=3.0,
                                   shading=0.0, bits=None)
     box = np.zeros(truth.shape, bool)
     box[28:67, 28:67] = True                             # 0.3 and 0.7 of 96 px
-    assert np.array_equal(truth, np.where(box, 2.0, -2.0))
-    # a shear of at most 2 moves the views by at most 4 px; the box's edge moves by
-    # at most 4 steps x 2 views = 8 px
+    assert np.array_equal(truth, np.where(box, 3.0, -1.0))
+    # a shear of at most 3 moves the views by at most 6 px; the box's edge by at most
+    # (3 - (-1)) px per step x 2 steps = 8 px
     away = np.zeros(truth.shape, bool)
     away[8:88, 8:88] = True
     away[19:76, 19:76] = False
     assert away.sum() > 2000
     centre = views[2, 2]
-    for s, fits in ((-2, True), (2, True), (0, False)):
+    for s, fits in ((-1, True), (3, True), (1, False)):
         sv = shear(views, s)
         diff = np.abs(sv - centre).max(axis=(0, 1))
         assert (diff[away] < 1e-12).all() == fits, s
+
+
+def test_a_bar_in_front_of_the_smooth_wall_moves_with_its_own_disparity():
+    """``smooth_wall_views(bar=...)``: the bar is the nearest surface where its ray meets
+    it, so in the view one camera step right of the centre it appears ``d_bar`` px
+    left of where the centre view has it (noise-free, unquantised), with the plane's
+    texture at the contrast asked; the disparity map is ``d_bar`` on its rectangle."""
+    from gridflow.generators.lightfield import smooth_wall_views
+
+    bar = (30, 36, 20, 44, 2.0, 0.5)
+    views, truth = smooth_wall_views(n=3, size=64, shading=0.02, bits=None, bar=bar)
+    truth0 = smooth_wall_views(n=3, size=64, shading=0.02, bits=None)[1]
+    assert (truth[20:44, 30:36] == 2.0).all()
+    out = np.ones(truth.shape, bool)
+    out[20:44, 30:36] = False
+    assert np.array_equal(truth[out], truth0[out])
+    centre, right = views[1, 1], views[1, 2]
+    assert np.array_equal(right[20:44, 28:34], centre[20:44, 30:36])
+    # half the contrast: the bar's deviations from 0.45 are half those at full contrast
+    full = smooth_wall_views(n=3, size=64, shading=0.02, bits=None,
+                             bar=bar[:5] + (1.0,))[0][1, 1]
+    assert np.allclose(centre[20:44, 30:36] - 0.45, 0.5 * (full[20:44, 30:36] - 0.45),
+                       rtol=0, atol=1e-15)
+    assert np.abs(full[20:44, 30:36] - 0.45).max() > 0.05

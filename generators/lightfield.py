@@ -23,6 +23,17 @@ def _texture(rng, mean: float, amp: float, freq: float, terms: int = 6):
                                          for i in range(terms))
 
 
+def _sensor(views: np.ndarray, rng, noise: float, bits: int | None) -> np.ndarray:
+    """``views`` as a camera records them: Gaussian noise of ``noise`` (intensities
+    0..1) added from ``rng``, then quantised to ``bits`` bits (None or 0: not at all)."""
+    if noise > 0:
+        views = views + rng.normal(0.0, noise, views.shape)
+    if bits:
+        q = 2 ** bits - 1
+        views = np.round(np.clip(views, 0.0, 1.0) * q) / q
+    return views
+
+
 def _slanted_plane(xc, d0: float, slope: float, dc: int):
     """The point ``u`` (px from the image centre, along x) of the plane of disparity
     ``d0 + slope * u`` that pixel column ``xc`` of the view ``dc`` camera steps off the
@@ -183,11 +194,7 @@ def smooth_wall_views(n: int = 9, size: int = 256, d_range=(-3.0, 2.4), d_wall: 
                           & (d_bar >= np.where(on_wall, d_wall, d_plane)))
                 views[r, c] = np.where(on_bar, 0.45 + contrast * (tex(xb, yb) - 0.45),
                                        views[r, c])
-    if noise > 0:
-        views = views + rng.normal(0.0, noise, views.shape)
-    if bits:
-        q = 2 ** bits - 1
-        views = np.round(np.clip(views, 0.0, 1.0) * q) / q
+    views = _sensor(views, rng, noise, bits)
     d_plane = d0 + slope * xc
     on_wall = (y >= y0) & (y < y1) & (x >= x0) & (x < x1) & (d_wall >= d_plane)
     truth = np.where(on_wall, d_wall, d_plane)
@@ -259,10 +266,6 @@ def periodic_views(n: int = 9, size: int = 192, period: float = 4.0, d_bg: float
             # the box where its ray meets it first (the larger disparity is the nearer)
             on_box = (yf >= b0) & (yf < b1) & (xf >= b0) & (xf < b1) & (d_box >= d_bg)
             views[r, c] = np.where(on_box, tex(xf, yf), grid + shade)
-    if noise > 0:
-        views = views + rng.normal(0.0, noise, views.shape)
-    if bits:
-        q = 2 ** bits - 1
-        views = np.round(np.clip(views, 0.0, 1.0) * q) / q
+    views = _sensor(views, rng, noise, bits)
     on_box = (y >= b0) & (y < b1) & (x >= b0) & (x < b1) & (d_box >= d_bg)
     return views, np.where(on_box, d_box, d_bg)

@@ -249,7 +249,6 @@ def test_a_signal_at_random_times_during_generate_hci_leaves_no_partial_scene(tm
             trials += HCI_SIGNAL_TRIALS // 3
         folder = tmp_path / f"s{trial}"
         sig = (signal.SIGTERM, signal.SIGINT)[trial % 2]
-        trial += 1
         p = subprocess.Popen(command(folder), cwd=ROOT, stdout=subprocess.DEVNULL,
                              stderr=subprocess.PIPE, text=True)
         time.sleep(rng.uniform(0, 1.25 * duration))
@@ -270,6 +269,7 @@ def test_a_signal_at_random_times_during_generate_hci_leaves_no_partial_scene(tm
         else:
             assert p.returncode in (130, 143, -sig), (trial, p.returncode, err)
             seen["absent"] += 1
+        trial += 1
     assert seen["absent"] and seen["whole"], seen
     tried("signal at a random time during generate --hci", trials)
 

@@ -812,7 +812,7 @@ def test_no_pixel_of_a_smooth_wall_is_off_by_a_pixel():
     shaded: 0.6 +- 0.02 over 120 px, 8 bit, noise of 4 grey levels) beside a slanted
     textured plane.  At sigma 1 px every shear fits the wall about as well as another
     (its rows' and columns' residual estimates spread over +-0.8 px at every shear), so
-    the former default chose among them by noise: 13941 of 48119 scored pixels off by
+    the former default chose among them by noise: 13962 of 48119 scored pixels off by
     more than 1 px (the wall's 26421: 53 %), up to 4.5 px.  The default now takes the
     shear of such an open region from the confirmed coarse disparity (the coarsest
     level whose data lie inside the wall), which leaves no wall pixel off by more than

@@ -289,8 +289,8 @@ def _prior_cost(C: np.ndarray, lo: np.ndarray, prior, aggregate: int,
         # chance agreement (a 1/4 level's 0.32 px per view on the 512^2 wall at 1.0,
         # where no coarser level had an estimate to check it against, put a disk of
         # pixels on the shear of 0: most of the wall's 980 off by more than 1 px)
-        own = np.isfinite(d) & ~off
-        supported = own & (_gauss(own.astype(float), reach / 2) >= 0.5)
+        est = np.isfinite(d) & ~off
+        supported = est & (_gauss(est.astype(float), reach / 2) >= 0.5)
         take = np.isnan(p) & supported & (depth >= reach)
         if take.any():
             # each kept value the mean of the kept values around it, weighted by the
@@ -533,8 +533,9 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         coarsest level whose data lie inside the region, a finer one only where it
         agrees within half a shear with a coarser one's estimate; each averaged over
         half its reach, each counting only where the level confirms at least half
-        of the pixels around it), the rest of the region taking the nearest such value (default
-        True; ``bench/README.md``, *Light fields*, measures it; :func:`_prior_cost`).
+        of the pixels around it), the rest of the region taking the nearest such value
+        (default True; ``bench/README.md``, *Light fields*, measures it;
+        :func:`_prior_cost`).
     coarse_sigma : float
         ``"coarse"``: low-pass of the coarse pass, px; its window is twice ``sigma``.
     fill : bool

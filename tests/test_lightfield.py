@@ -822,8 +822,7 @@ def test_no_pixel_of_a_smooth_wall_is_off_by_a_pixel():
     (so the scene tests the step), and no pixel of the textured plane may be off by
     more than 1 px either (2 were, both ways, on the left border, while every sub-grid
     had the whole grid's margin: their shear of -3 moves the outer views 12 px)."""
-    from scipy.ndimage import binary_dilation, sobel
-
+    from gridflow.bench.lightfield_outliers import scored_mask
     from gridflow.estimator.lightfield import estimate_refocused
     from gridflow.generators.lightfield import smooth_wall_views
 
@@ -831,10 +830,7 @@ def test_no_pixel_of_a_smooth_wall_is_off_by_a_pixel():
     shears = tuple(range(-3, 4))
     err = np.abs(estimate_refocused(views, shears)["disparity"] - truth)
     former = np.abs(estimate_refocused(views, shears, smooth=False)["disparity"] - truth)
-    edge = (np.abs(sobel(truth, 0)) + np.abs(sobel(truth, 1))) > 0.5
-    scored = ~binary_dilation(edge, iterations=3)
-    scored[:15] = scored[-15:] = False
-    scored[:, :15] = scored[:, -15:] = False
+    scored = scored_mask(truth, band=3, border=15)
     wall = scored & (truth == 1.0)
     assert wall.sum() > 20000
     assert err[wall].max() <= 1.0, (err[wall] > 1).sum()

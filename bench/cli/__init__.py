@@ -86,13 +86,27 @@ def _quiet_io_loop() -> None:
 
 
 def main(argv=None) -> int:
+    import signal
+    import threading
+
+    # the parser reads the estimator's defaults: numpy, scipy and numba import here, the
+    # first ~0.3 s.  Ctrl-C there gave a bare KeyboardInterrupt traceback, or, inside
+    # numpy's C import, numpy's ImportError ("could not import module datetime") and
+    # status 1 (CI, once): the SIGINT is held until the imports are done
+    held = []
+    main_thread = threading.current_thread() is threading.main_thread()
+    if main_thread:
+        before = signal.signal(signal.SIGINT, lambda sig, frame: held.append(sig))
     try:
-        # the parser reads the estimator's defaults: numpy, scipy and numba import here, the
-        # first ~0.3 s, where Ctrl-C gave a bare KeyboardInterrupt traceback
         a = build_parser().parse_args(argv)
         _log_to_stderr()
         from gridflow.pipeline.executors import Terminated, signals_raise
     except KeyboardInterrupt:
+        held.append(signal.SIGINT)
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGINT, before)
+    if held:
         print("gridflow: interrupted (SIGINT) while starting; nothing was written",
               file=sys.stderr)
         return 130

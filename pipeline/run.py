@@ -459,6 +459,14 @@ def _band_rows(shape, window_frames: int, halo, o: RunOptions, budget: int, *,
 
     if need() <= budget:
         return H
+    if need(halo + 1) > budget and 3 * halo + 1 >= H:
+        # the narrowest band and its halo span the whole image: bands cannot help (under
+        # affine motion the pooled rates' reach is far larger than a 512-row image)
+        raise UsageError(
+            f"a step reads the whole image (a band's estimate reads {halo} rows either "
+            f"side of it, the image has {H}): {window_frames} frames of {Sy}x{Sx} views "
+            f"of {H}x{W} px need about {need() / 2**30:.2f} GiB, more than the memory "
+            f"budget {budget / 2**30:.2f} GiB (--memory GIB)")
     if need(halo + 1) > budget:
         raise UsageError(
             f"even a band of {halo + 1} rows (and the {halo} rows either side its estimate "

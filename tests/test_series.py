@@ -313,6 +313,13 @@ def test_a_step_over_the_memory_budget_runs_in_row_bands(recording, tmp_path, ca
     assert main(["estimate", str(recording), "-o", str(tiny), "--memory", "0.0001",
                  *EST]) == 2
     assert "even a band of" in capsys.readouterr().err and not tiny.exists()
+    # with the pooled rates (the default growth support) a band's halo spans the 64-px
+    # image: the refusal says the step reads the whole image, not a band wider than it
+    assert main(["estimate", str(recording), "-o", str(tiny), "--memory", "0.0001",
+                 *globals()["EST"]]) == 2
+    err = capsys.readouterr().err
+    assert "a step reads the whole image" in err and "the image has 64" in err, err
+    assert "even a band" not in err and not tiny.exists()
 
 
 @pytest.mark.slow

@@ -180,6 +180,15 @@ class SinusoidParams:
         for name, v in positive.items():
             if v <= 0:
                 raise ParameterError(f"{name} must be positive, got {v}")
+        with np.errstate(over="ignore"):
+            wavenumbers = texture_wavenumbers(self)
+        for name, k in zip(("wavelength_x", "wavelength_y"), wavenumbers):
+            if not np.isfinite(k):
+                # a wavelength near the smallest float: 2 pi / (wavelength Z0 / f)
+                # overflows, and the texture would be NaN
+                raise ParameterError(f"{name} {getattr(self, name)!r} px is too small: "
+                                     f"the texture's wavenumber 2 pi f / ({name} Z0) "
+                                     "overflows")
         for name in ("noise", "amplitude"):
             if getattr(self, name) < 0:
                 raise ParameterError(f"{name} must be non-negative")

@@ -100,6 +100,10 @@ def test_float32_output():
     (dict(grid=(0, 5)), "grid"),
     (dict(Z0=float("nan")), "finite"),
     (dict(f=0.0), "positive"),
+    # 2 pi f / (wavelength Z0) overflows to inf: the texture was NaN (test_properties'
+    # example under a full run's xdist worker)
+    (dict(wavelength_x=2.2250738585072014e-308), "wavelength_x .* too small"),
+    (dict(wavelength_y=1e-307, f=1e5), "wavelength_y .* too small"),
 ])
 def test_bad_parameters(kw, match):
     with pytest.raises(ValueError, match=match):

@@ -160,6 +160,11 @@ class _ZarrReader:
         self._cache: dict = {}
         self._pending: dict = {}                 # frame -> Event, while a thread decodes it
         self._capacity = 0
+        # what the estimator computed from a frame alone, kept for the next steps:
+        # frame -> (signature, {key: value}); see keep_values
+        self._values: dict = {}
+        self._pending_values: dict = {}          # (frame, key) -> Event, while computed
+        self._value_capacity = 0
         self._lock = threading.Lock()
 
     @property
@@ -177,6 +182,61 @@ class _ZarrReader:
             self._capacity = max(0, int(n))
             while len(self._cache) > self._capacity:
                 del self._cache[next(iter(self._cache))]    # the first kept
+
+    def keep_values(self, n: int) -> None:
+        """Keep what :meth:`frame_value` computed for up to ``n`` frames (those farthest
+        from the frame computed last dropped first); ``n = 0`` (the default) keeps
+        none."""
+        with self._lock:
+            self._value_capacity = max(0, int(n))
+            while len(self._values) > self._value_capacity:
+                del self._values[next(iter(self._values))]
+
+    @property
+    def values_kept(self) -> int:
+        return self._value_capacity
+
+    def frame_value(self, t: int, key, fn, dtype):
+        """``fn(frame t)`` (decoded, checked finite, as ``dtype``), kept under ``key``
+        while frame ``t``'s chunk files are those it was computed from; a value another
+        thread is computing is waited for, not computed twice."""
+        sig = self._signature(t)
+        while True:
+            with self._lock:
+                hit = self._values.get(t)
+                if hit is not None and hit[0] == sig and key in hit[1]:
+                    return hit[1][key]
+                pending = self._pending_values.get((t, key))
+                mine = pending is None
+                if mine:
+                    pending = self._pending_values[(t, key)] = threading.Event()
+            if mine:
+                break
+            pending.wait()
+        try:
+            # as read() reads it: a missing chunk named, an undecodable one a RecordingError
+            self.check_present(t, t + 1)
+            try:
+                frame = self._frame(t)
+            except RecordingError:
+                raise
+            except Exception as exc:
+                raise RecordingError(self._unreadable(t, t + 1, 0, self.volume.shape[3],
+                                                      exc)) from None
+            value = fn(frame if frame.dtype == dtype else frame.astype(dtype))
+            with self._lock:
+                if self._value_capacity:
+                    hit = self._values.get(t)
+                    kept = hit[1] if hit is not None and hit[0] == sig else {}
+                    kept[key] = value
+                    self._values[t] = (sig, kept)
+                    while len(self._values) > self._value_capacity:
+                        del self._values[max(self._values, key=lambda f: (abs(f - t), f))]
+            return value
+        finally:
+            with self._lock:
+                del self._pending_values[t, key]
+            pending.set()
 
     def _signature(self, frame: int) -> tuple:
         return tuple(file_states(self.files(frame, frame + 1)))

@@ -305,6 +305,29 @@ class Source:
         if keep is not None:
             keep(n)
 
+    def keep_values(self, n: int) -> None:
+        """Keep what :meth:`frame_value` computes for up to ``n`` frames where the format
+        decodes frames (a recording store); a no-op for the others."""
+        keep = getattr(self._reader, "keep_values", None)
+        if keep is not None:
+            keep(n)
+
+    @property
+    def values_kept(self) -> int:
+        """Frames whose :meth:`frame_value` results are kept (0: none)."""
+        return int(getattr(self._reader, "values_kept", 0))
+
+    def frame_value(self, t: int, key, fn, dtype=np.float64):
+        """``fn(frame)`` for frame ``t`` (shape (Sy, Sx, H, W), read as ``dtype``, as
+        :meth:`read` reads it), kept under ``key`` for later calls where
+        :meth:`keep_values` asked for it: the estimator's per-frame work of a
+        :class:`gridflow.estimator.signals.FramedVolume`, done once for the steps that
+        share the frame."""
+        value = getattr(self._reader, "frame_value", None)
+        if value is not None and self.values_kept:
+            return value(int(t), key, fn, np.dtype(dtype))
+        return fn(self.read(int(t), int(t) + 1, dtype=dtype)[0])
+
     def truth(self, frame: int, names=None) -> dict[str, np.ndarray]:
         """Ground truth at the reference camera and ``frame``: name to ``(H, W)`` float64,
         for ``names`` (default all of :attr:`truth_names`); empty where the source has

@@ -104,7 +104,13 @@ class Backend:
         ``(non-finite count, max |V|)`` in one pass, or None to let the driver check the
         volume frame by frame.
     ``signals(volume, plan, rows)``
-        The base signals of a band of image rows (:mod:`estimator.signals`).
+        The base signals of a band of image rows (:mod:`estimator.signals`):
+        ``from_sums(camera_sums(volume, plan, rows), plan)``.
+    ``camera_sums(volume, plan, rows)``
+        The camera sums of the band, shape (C, len(plan.needed), h, W), float64
+        (:func:`estimator.signals.camera_sums`; each frame's independent of the others).
+    ``from_sums(sums, plan)``
+        The base signals from the camera sums (the temporal taps, then x and y).
     ``tensor(signals, plan)``
         J of the band's kept pixels, a :class:`~estimator.tensor.DenseTensor` or
         :class:`~estimator.tensor.PackedTensor`.
@@ -124,7 +130,14 @@ class Backend:
         return None
 
     def signals(self, volume: np.ndarray, plan: sig.SignalPlan, rows: slice) -> dict:
-        ct = sig.temporal_taps(sig.camera_sums(volume, plan, rows), plan)
+        return self.from_sums(self.camera_sums(volume, plan, rows), plan)
+
+    def camera_sums(self, volume: np.ndarray, plan: sig.SignalPlan, rows: slice):
+        return sig.camera_sums(volume, plan, rows)
+
+    def from_sums(self, sums: np.ndarray, plan: sig.SignalPlan) -> dict:
+        ct = sig.temporal_taps(sums, plan)
+        del sums
         jobs = sig.spatial_jobs(ct, plan.spatial, plan.extra)
         del ct
         from concurrent.futures import ThreadPoolExecutor
@@ -207,12 +220,14 @@ class NumbaBackend(Backend):
     def scan(self, volume: np.ndarray):
         return self._kernels.scan_volume(volume)
 
-    def signals(self, volume: np.ndarray, plan: sig.SignalPlan, rows: slice) -> dict:
+    def camera_sums(self, volume: np.ndarray, plan: sig.SignalPlan, rows: slice):
         r0, r1, step = rows.indices(volume.shape[3])
         if step != 1:
             raise ValueError(f"rows must be a contiguous band, got {rows}")
-        sums = self._kernels.camera_sums(volume, plan.needed, plan.iy0, plan.ix0, r0, r1,
+        return self._kernels.camera_sums(volume, plan.needed, plan.iy0, plan.ix0, r0, r1,
                                          plan.weights)
+
+    def from_sums(self, sums: np.ndarray, plan: sig.SignalPlan) -> dict:
         ct = sig.temporal_taps(sums, plan)
         del sums
         return {k: self._kernels.spatial_filter(a, kx, ky)

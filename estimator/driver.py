@@ -12,7 +12,7 @@ filters the signals, forms the structure tensor and solves each model's null spa
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -27,7 +27,7 @@ from .pooling import (bell, bell_radius, bell_square_sum, fit_variance, local_li
                       texture_reach, textured_windows)
 from .result import Estimate
 from .settings import EstimatorSettings, InputError
-from .signals import SignalPlan, signal_plan
+from .signals import FramedVolume, SignalPlan, signal_plan
 from .tensor import gaussian_moment_kernels, scaled, zoom_corrected, zoom_terms
 
 __all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
@@ -88,13 +88,21 @@ class Plan:
         """The frames of the temporal window."""
         return np.arange(self.k_ref - self.R_t, self.k_ref + self.R_t + 1)
 
-    def signal_plan(self, extra: tuple[str, ...] = ()) -> SignalPlan:
+    def signal_plan(self, extra: tuple[str, ...] = (), scale: float | None = None
+                    ) -> SignalPlan:
+        """The signals' plan, the camera weights times ``scale`` (default
+        :attr:`scale`)."""
         return signal_plan(self.volume.shape, self.frames, self.cam_x, self.cam_y, self.time,
-                           self.spatial, scale=self.scale, extra=extra)
+                           self.spatial, scale=self.scale if scale is None else scale,
+                           extra=extra)
 
 
 def _check_volume(volume, backend) -> tuple[np.ndarray, float]:
     """``(volume, max |V|)`` of a valid volume, or an InputError naming the problem."""
+    if isinstance(volume, FramedVolume):
+        # its largest magnitude comes with its frames' sums (estimate_models)
+        _check_framed(volume)
+        return volume, float("nan")
     if not isinstance(volume, np.ndarray):
         raise InputError(f"volume must be a numpy array, got {type(volume).__name__}")
     if volume.ndim != 5:
@@ -126,6 +134,63 @@ def _check_volume(volume, backend) -> tuple[np.ndarray, float]:
     if volume.size == 0:
         raise InputError(f"volume is empty (shape {volume.shape})")
     return volume, amax
+
+
+def _check_framed(volume: FramedVolume) -> None:
+    """The shape and type of a :class:`FramedVolume` (its frames are checked as they are
+    read: :func:`_framed_frames`), or an InputError as :func:`_check_volume` gives."""
+    if len(volume.shape) != 5:
+        raise InputError(f"volume must have shape (T, Sy, Sx, H, W) (5 axes); got shape "
+                         f"{volume.shape}")
+    if np.dtype(volume.dtype) not in (np.float32, np.float64):
+        raise InputError(f"volume must be float32 or float64, got {volume.dtype}")
+    if 0 in volume.shape:
+        raise InputError(f"volume is empty (shape {volume.shape})")
+
+
+def _framed_frames(volume: FramedVolume, splan: SignalPlan, backend) -> list[dict]:
+    """What the estimate needs of each frame of a :class:`FramedVolume`, read once per
+    frame (``volume.memo``: a caller may keep it for the next step): ``amax`` (max |V|,
+    the frame checked finite as :func:`_check_volume` checks an array), ``sums`` (its
+    camera sums over the whole image under the unscaled weights of ``splan``, shape
+    (C, H, W), float64, as ``backend.camera_sums`` gives them for the frame alone) and
+    ``view`` (the centre view, (H, W)).  One per frame of the volume."""
+    one = SignalPlan(np.zeros(1, dtype=np.int64), splan.iy0, splan.ix0, splan.weights,
+                     splan.combos, splan.taps, splan.spatial, splan.extra)
+    Sy, Sx = volume.shape[1:3]
+    key = ("frame", backend.name, splan.iy0, splan.ix0, splan.weights.shape,
+           splan.weights.tobytes())
+
+    def per_frame(k):
+        def fn(frame):
+            bad = ~np.isfinite(frame)
+            if bad.any():
+                first = (k,) + tuple(int(i) for i in np.argwhere(bad)[0])
+                raise InputError(f"volume has {int(np.count_nonzero(bad))} non-finite "
+                                 f"values (NaN or inf) in frame {k}; first at index (t, "
+                                 f"sy, sx, y, x) = {first}")
+            return {"amax": float(np.max(np.abs(frame))),
+                    "sums": backend.camera_sums(frame[None], one, slice(None))[:, 0],
+                    "view": frame[Sy // 2, Sx // 2].copy()}
+        return fn
+    return [volume.memo(k, key, per_frame(k)) for k in range(volume.shape[0])]
+
+
+def _framed_sums(frames: list[dict], needed: np.ndarray, scale: float,
+                 rows: slice) -> np.ndarray:
+    """The camera sums of a band of a :class:`FramedVolume` (``frames`` from
+    :func:`_framed_frames`), as ``backend.camera_sums`` gives those of the same frames
+    as one array, bit for bit: the frames' unscaled sums times ``scale``, a power of two
+    (exact: every product and sum scales with it).
+
+    Returns
+    -------
+    ndarray, shape (C, len(needed), h, W), float64
+    """
+    sums = np.stack([frames[int(k)]["sums"][:, rows] for k in needed], axis=1)
+    if scale != 1.0:
+        sums *= scale
+    return sums
 
 
 def window_halo(s: EstimatorSettings) -> int:
@@ -461,9 +526,11 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     """
     s = EstimatorSettings(**settings)
     models = tuple(models)
-    backend = select_backend(s.method, np.shape(volume))
+    framed = isinstance(volume, FramedVolume)
+    shape = tuple(volume.shape) if framed else np.shape(volume)
+    backend = select_backend(s.method, shape)
     plan = _plan(volume, focal_length, camera_spacing, principal_point, s, models, backend)
-    shape_hw = tuple(np.shape(volume)[-2:])
+    shape_hw = tuple(shape[-2:])
     if mask is not None:
         mask = np.asarray(mask)
         if mask.shape != shape_hw or not (mask.dtype == bool or np.isin(mask, (0, 1)).all()):
@@ -482,6 +549,11 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     T, Sy, Sx, H, W = vol.shape
     halo = plan.halo
     n = len(ext)
+    if framed:
+        # a volume given frame by frame: each frame's sums (under the unscaled weights),
+        # largest magnitude and centre view, read once; the scale from the magnitudes
+        frames = _framed_frames(vol, plan.signal_plan(extra, scale=1.0), backend)
+        plan = replace(plan, scale=_unit_scale(max(f["amax"] for f in frames)))
     splan = plan.signal_plan(extra)
     band = s.band_rows
     if band is None:
@@ -528,7 +600,12 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     n_eff = _effective_samples(tplan.kernels[0], plan.spatial, len(plan.frames), plan.time)
     for r0 in range(halo, H - halo, band):
         r1 = min(r0 + band, H - halo)
-        signals = backend.signals(vol, splan, slice(r0 - halo, r1 + halo))
+        band_rows_ = slice(r0 - halo, r1 + halo)
+        if framed:
+            signals = backend.from_sums(_framed_sums(frames, splan.needed, plan.scale,
+                                                     band_rows_), splan)
+        else:
+            signals = backend.signals(vol, splan, band_rows_)
         if mask is not None:
             # normalized convolution: only the object's samples enter the window's sums
             m = used_samples[r0 - halo:r1 + halo]
@@ -571,7 +648,8 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
                     out[m][name][r0 + a:r0 + b, halo:W - halo] = val.reshape(b - a, cols.size)
     if pool:
         Sy, Sx = vol.shape[1:3]
-        textured = textured_windows(vol[plan.k_ref, Sy // 2, Sx // 2], s.window // 2,
+        ref_view = frames[plan.k_ref]["view"] if framed else vol[plan.k_ref, Sy // 2, Sx // 2]
+        textured = textured_windows(ref_view, s.window // 2,
                                     used_samples)
     for m, kept in pool.items():
         out[m].update(_pooled(kept, interior, textured, sigma_pool, plan, s.sigma,

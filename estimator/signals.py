@@ -17,13 +17,14 @@ sums and the separable filtering.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
 from .filters import FilterPair
 
 __all__ = ["SignalPlan", "signal_plan", "camera_sums", "temporal_taps", "spatial_jobs",
-           "separable", "ZOOM_SIGNALS"]
+           "separable", "ZOOM_SIGNALS", "FramedVolume"]
 
 # The zoom-blur correction's base signals (estimator.models.ZOOM_ROW_SIGNALS): the
 # prefilter's first moment along the axis of a row's monomial, applied to the row's
@@ -72,6 +73,40 @@ class SignalPlan:
     taps: dict
     spatial: FilterPair
     extra: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class FramedVolume:
+    """A volume given frame by frame, for windows of a recording that share frames.
+
+    The estimator takes it wherever it takes a volume.  It reads a frame only through
+    ``memo``, for what depends on that frame alone: its camera sums (the first step of
+    :func:`camera_sums`, per frame), its largest magnitude (with the finiteness check)
+    and the reference view.  A caller that keeps these per frame across the steps of a
+    series (``gridflow estimate --every 1``: each frame is in up to 17 windows) lets a
+    step filter only its new frames, and no step holds the window itself.  The maps are
+    those of the same frames given as one array, bit for bit (the camera weights' scale
+    is a power of two, applied to the kept sums: :func:`estimator.driver._unit_scale`).
+
+    Attributes
+    ----------
+    shape : tuple of int
+        ``(T, Sy, Sx, H, W)``, as the volume it stands for.
+    dtype : numpy.dtype
+        float32 or float64: the frames' type.
+    memo : callable
+        ``memo(t, key, fn)``: ``fn(frame)`` for frame ``t`` of the window (``frame`` of
+        shape (Sy, Sx, H, W), of ``dtype``); a caller may return a value it kept for
+        the same frame and ``key`` instead of calling ``fn`` again.
+    """
+
+    shape: tuple
+    dtype: np.dtype
+    memo: Callable
+
+    @property
+    def ndim(self) -> int:
+        return len(self.shape)
 
 
 def signal_plan(shape, frames: np.ndarray, cam_x: FilterPair, cam_y: FilterPair | None,

@@ -590,7 +590,17 @@ def estimate_step(plan: Plan, i: int, b: int, progress=None) -> tuple[dict, int]
     # float32 where the source stores it and the strategy takes it: half the memory and
     # no conversion, the same maps
     stored = _read_itemsize(src, plan.strategy) == 4
-    window = src.read(lo, hi, rows=(a0, a1), dtype=np.float32 if stored else np.float64)
+    dtype = np.float32 if stored else np.float64
+    if (src.values_kept and (a0, a1) == (0, H) and isinstance(plan.strategy, SinglePass)):
+        # the window frame by frame: each frame's camera sums (and largest magnitude,
+        # reference view) computed once for the steps that share it, and no window
+        # assembled (the maps are the same bit for bit: FramedVolume)
+        from gridflow.estimator.signals import FramedVolume
+
+        window = FramedVolume((hi - lo,) + tuple(src.shape[1:]), np.dtype(dtype),
+                              lambda t, key, fn: src.frame_value(lo + t, key, fn, dtype))
+    else:
+        window = src.read(lo, hi, rows=(a0, a1), dtype=dtype)
     try:
         mask = plan.strategy.step_mask(src, k)
         ests = plan.strategy.run(window, src.geometry.for_rows(a0), k - lo, progress,
@@ -642,7 +652,12 @@ def run_step(job: dict, i: int, b: int) -> dict:
     with _OPENING:
         source, sink = _opened(job["source"], job["views"], json.dumps(job["sink"],
                                                                         sort_keys=True))
-    source.cache_frames(job.get("cache_frames", 0))
+    keep = job.get("cache_frames", 0)
+    # what the estimator computes from each frame alone is kept for the frames a worker's
+    # steps share (Source.frame_value); of the decoded frames only the few being
+    # computed from (several threads each start on a new frame)
+    source.keep_values(keep)
+    source.cache_frames(min(keep, 2 * job.get("tasks", 1) + 1))
     ests, stamp = estimate_step(replace(job["plan"], source=source), i, b)
     t1 = time.perf_counter()
     sink.write(i, b, ests, stamp)
@@ -672,7 +687,8 @@ def _local(plan: Plan, o: RunOptions) -> tuple[int, int, int]:
 
 
 def frame_cache(plan: Plan, tasks: int, budget: int) -> int:
-    """Decoded frames a worker keeps (:meth:`gridflow.volume.Source.cache_frames`) for
+    """Frames a worker keeps the camera sums of (:meth:`gridflow.volume.Source.keep_values`;
+    counted here as decoded frames, which take more) for
     ``tasks`` steps at once: a window and the frames the further steps reach beyond it,
     so that steps one frame apart decode one frame each; none where steps are cut into
     row bands (memory is short there), where steps do not share frames, or where the
@@ -861,12 +877,12 @@ def _run_tasks(plan: Plan, sink, todo, o: RunOptions, views, report: RunReport,
         # each worker process keeps its own frames, where they fit its memory limit
         # beside its threads' steps (none where a worker states no limit)
         limits = [w.get("memory_limit") or 0 for w in workers]
-        job["cache_frames"] = (frame_cache(plan, max(w.get("nthreads", 1) for w in workers),
-                                           min(limits))
+        job["tasks"] = max((w.get("nthreads", 1) for w in workers), default=1)
+        job["cache_frames"] = (frame_cache(plan, job["tasks"], min(limits))
                                if workers and all(limits) else 0)
     else:
         n, threads, budget = _local(plan, o)
-        job["threads"] = threads
+        job["threads"], job["tasks"] = threads, n
         job["cache_frames"] = frame_cache(plan, n, budget)
         unit = "step" if nb == 1 else "band"
         where = (f"this machine: {n} {unit}(s) at once, {threads} numba thread(s) each, "

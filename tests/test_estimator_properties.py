@@ -147,6 +147,75 @@ def test_a_float32_volume_gives_the_maps_of_its_float64_copy():
                 assert np.array_equal(a[q], b[q], equal_nan=True), (backend, motion, q)
 
 
+def _framed(volume, kept, lo=0):
+    """``volume`` as a FramedVolume whose frames' values are kept in ``kept`` under
+    ``(lo + t, key)`` (as the pipeline keeps them across steps); returns it and the list
+    of the frames it computed a value for."""
+    from gridflow.estimator.signals import FramedVolume
+
+    computed = []
+
+    def memo(t, key, fn):
+        k = (lo + t, key)
+        if k not in kept:
+            computed.append(lo + t)
+            kept[k] = fn(volume[t])
+        return kept[k]
+    return FramedVolume(volume.shape, volume.dtype, memo), computed
+
+
+def test_a_volume_given_frame_by_frame_gives_the_maps_of_its_array():
+    """A recording's steps share frames: given frame by frame (FramedVolume), each
+    frame's camera sums are computed once and reused by the next step, and every map is
+    bit for bit that of the same frames as one array: on each fast backend, both motion
+    models, a window split into bands, and a volume whose scale (a power of two: 2^-10
+    here) is applied to the kept sums."""
+    for size, backend in ((80, "fft"), (160, "numba")):
+        sv = make_sinusoid(height=size, width=size, frames=14, dtype=np.float32,
+                           noise=0.01)
+        for motion, factor, band in (("translation", 1.0, None), ("affine", 1.0, None),
+                                     ("affine", 1000.0, 7)):
+            vol = sv.volume * np.float32(factor)
+            n = 5 if motion == "translation" else 13
+            kept = {}
+            for lo in (0, 1):
+                window = np.ascontiguousarray(vol[lo:lo + n])
+                kw = dict(models=("full", "bcc"), motion=motion, band_rows=band,
+                          temporal_radius=None if motion == "translation" else 4)
+                a = estimate_models(window, sv.focal_length, sv.camera_spacing, **kw)
+                framed, computed = _framed(window, kept, lo)
+                b = estimate_models(framed, sv.focal_length, sv.camera_spacing, **kw)
+                # the first step reads every frame of its window, the next only its new one
+                assert computed == (list(range(n)) if lo == 0 else [lo + n - 1]), computed
+                for m in a:
+                    assert a[m].settings["backend"] == b[m].settings["backend"] == backend
+                    assert a[m].settings == b[m].settings
+                    for q in a[m].maps:
+                        assert np.array_equal(a[m][q], b[m][q], equal_nan=True), (
+                            backend, motion, factor, m, q)
+
+
+def test_a_frame_given_frame_by_frame_is_checked_as_an_array_is():
+    """A non-finite sample of a FramedVolume is refused with the frame and index, as
+    in an array; a volume of the wrong number of axes or type is refused before any
+    frame is read."""
+    from gridflow.estimator.signals import FramedVolume
+
+    sv = make_sinusoid(**SMALL)
+    vol = sv.volume.copy()
+    vol[3, 1, 2, 10, 20] = np.nan
+    framed, computed = _framed(vol, {})
+    with pytest.raises(InputError, match=r"non-finite.*frame 3.*\(3, 1, 2, 10, 20\)"):
+        estimate(framed, sv.focal_length, sv.camera_spacing)
+    for shape, dtype, what in (((3, 80, 80), np.float64, "5 axes"),
+                               (vol.shape, np.int16, "float32 or float64")):
+        read = []
+        bad = FramedVolume(shape, np.dtype(dtype), lambda t, k, fn: read.append(t))
+        with pytest.raises(InputError, match=what):
+            estimate(bad, sv.focal_length, sv.camera_spacing)
+        assert not read
+
+
 def test_a_bands_arrays_stay_within_the_budget(monkeypatch):
     """The band height comes from a model of what a band holds (estimator.driver.
     band_rows); under a budget of 40 MB a 160 x 256 image is cut into several bands and

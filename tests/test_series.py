@@ -915,6 +915,53 @@ def test_steps_one_frame_apart_decode_each_frame_once(recording, tmp_path, monke
         kept.read(0, 2, dtype=np.int16)
 
 
+def test_a_frames_kept_values_are_computed_once_and_again_after_a_rewrite(
+        recording, tmp_path, monkeypatch):
+    """Source.frame_value keeps what was computed from a frame (Source.keep_values): a
+    second call with the same key does not decode or compute again, another key reads
+    the same frame; a frame rewritten since is decoded and computed again; the frames
+    farthest from the last one go first; without keep_values nothing is kept."""
+    import shutil
+
+    import zarr
+
+    from gridflow.sources import open_source
+
+    rec = tmp_path / "rec.zarr"
+    shutil.copytree(recording, rec)
+    src = open_source(rec)
+    src.keep_values(3)
+    decoded = _counting(src, monkeypatch)
+    calls = []
+
+    def total(frame):
+        calls.append(frame.dtype)
+        return float(frame.sum(dtype=np.float64))
+
+    stored = np.asarray(zarr.open_group(str(rec), mode="r")["volume"][:6])
+    for t in range(6):
+        assert src.frame_value(t, "sum", total, np.float32) == stored[t].sum(
+            dtype=np.float64)
+    assert decoded == list(range(6)) and calls == [np.float32] * 6
+    assert sorted(src._reader._values) == [3, 4, 5]
+    assert src.frame_value(5, "sum", total, np.float32) == stored[5].sum(dtype=np.float64)
+    assert len(calls) == 6 and decoded == list(range(6))
+    # another key: computed from the frame (decoded again: no decoded frame is kept)
+    assert src.frame_value(5, "max", lambda f: float(f.max()), np.float64) == stored[5].max()
+    assert decoded[6:] == [5]
+    time.sleep(0.01)
+    g = zarr.open_group(str(rec), mode="r+")
+    g["volume"][4] = stored[4] + 1.0
+    new = src.frame_value(4, "sum", total, np.float32)
+    assert decoded[7:] == [4] and len(calls) == 7
+    assert new == (stored[4] + np.float32(1.0)).sum(dtype=np.float64)
+    plain = open_source(rec)
+    assert plain.values_kept == 0
+    plain.frame_value(2, "sum", total, np.float32)
+    plain.frame_value(2, "sum", total, np.float32)
+    assert len(calls) == 9
+
+
 @pytest.mark.parametrize("cache", [0, 6])
 def test_a_non_finite_frame_is_named_whether_frames_are_kept_or_not(recording, tmp_path,
                                                                     cache):
@@ -942,11 +989,12 @@ def test_a_non_finite_frame_is_named_whether_frames_are_kept_or_not(recording, t
 
 def test_float32_windows_and_kept_frames_give_the_same_store(recording, tmp_path,
                                                              monkeypatch):
-    """The pipeline reads a float32 recording as float32 and keeps decoded frames for
-    the next steps, which it runs in order: 9 steps one frame apart with a 17-frame
-    window decode 17 + 8 frames one step at a time (at most 17 + 2 x 8 two at once,
-    measured 25; in random order about 90), and the store equals, array for array, one read as
-    float64 with no frame kept (the estimator's arithmetic is float64 either way)."""
+    """The pipeline reads a float32 recording as float32 and keeps what the estimator
+    computes from each frame (its camera sums) for the next steps, which it runs in
+    order: 9 steps one frame apart with a 17-frame window decode 17 + 8 frames one step
+    at a time (at most 17 + 2 x 8 two at once, measured 25; in random order about 90),
+    and the store equals, array for array, one read as float64 windows with nothing
+    kept (the estimator's arithmetic is float64 either way)."""
     from gridflow.pipeline import run as run_mod
     from gridflow.pipeline import strategies
     from gridflow.recording import _ZarrReader
@@ -964,14 +1012,22 @@ def test_float32_windows_and_kept_frames_give_the_same_store(recording, tmp_path
     real = run_mod.estimate_step
 
     def spy(plan, i, b, progress=None):
-        read = plan.source.read
+        read, value = plan.source.read, plan.source.frame_value
 
         def typed(*a, **k):
             out = read(*a, **k)
             dtypes.append(out.dtype)
             return out
 
+        def typed_value(t, key, fn, dtype=np.float64):
+            # kept frames: the estimator reads each frame once, through frame_value
+            def fn_typed(frame):
+                dtypes.append(frame.dtype)
+                return fn(frame)
+            return value(t, key, fn_typed, dtype)
+
         plan.source.read = typed
+        plan.source.frame_value = typed_value
         return real(plan, i, b, progress)
 
     monkeypatch.setattr(run_mod, "estimate_step", spy)

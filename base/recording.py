@@ -184,9 +184,9 @@ class _ZarrReader:
                 del self._cache[next(iter(self._cache))]    # the first kept
 
     def keep_values(self, n: int) -> None:
-        """Keep what :meth:`frame_value` computed for up to ``n`` frames (those farthest
-        from the frame computed last dropped first); ``n = 0`` (the default) keeps
-        none."""
+        """Keep what :meth:`frame_value` computed for up to ``n`` frames (as they come,
+        those farthest from the frame computed last are dropped first; lowering ``n``
+        drops the first kept); ``n = 0`` (the default) keeps none."""
         with self._lock:
             self._value_capacity = max(0, int(n))
             while len(self._values) > self._value_capacity:

@@ -323,9 +323,15 @@ class Source:
         :meth:`keep_values` asked for it: the estimator's per-frame work of a
         :class:`gridflow.estimator.signals.FramedVolume`, done once for the steps that
         share the frame."""
+        dtype = np.dtype(dtype)
+        if dtype == np.float32 and self.itemsize != 4:
+            # read()'s rule: float32 only as stored (a float64 frame would be rounded)
+            return fn(self.read(int(t), int(t) + 1, dtype=dtype)[0])
         value = getattr(self._reader, "frame_value", None)
         if value is not None and self.values_kept:
-            return value(int(t), key, fn, np.dtype(dtype))
+            # the type is part of the key: a value computed from the frame as float32
+            # is not one computed from it as float64
+            return value(int(t), (dtype.str, key), fn, dtype)
         return fn(self.read(int(t), int(t) + 1, dtype=dtype)[0])
 
     def truth(self, frame: int, names=None) -> dict[str, np.ndarray]:

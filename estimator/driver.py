@@ -45,7 +45,7 @@ class Plan:
 
     Attributes
     ----------
-    volume : ndarray, shape (T, Sy, Sx, H, W)
+    volume : ndarray, shape (T, Sy, Sx, H, W), or FramedVolume
     scale : float
         Power of two bringing max|V| near 1 (:func:`_unit_scale`), folded into the
         camera weights.
@@ -151,10 +151,12 @@ def _check_framed(volume: FramedVolume) -> None:
 def _framed_frames(volume: FramedVolume, splan: SignalPlan, backend) -> list[dict]:
     """What the estimate needs of each frame of a :class:`FramedVolume`, read once per
     frame (``volume.memo``: a caller may keep it for the next step): ``amax`` (max |V|,
-    the frame checked finite as :func:`_check_volume` checks an array), ``sums`` (its
-    camera sums over the whole image under the unscaled weights of ``splan``, shape
-    (C, H, W), float64, as ``backend.camera_sums`` gives them for the frame alone) and
-    ``view`` (the centre view, (H, W)).  One per frame of the volume."""
+    the frame checked finite as :func:`_check_volume` checks an array), ``amin`` (the
+    smallest |V| but 0 of a float64 frame, else None), ``sums`` (its camera sums over the
+    whole image under the weights of ``splan``, unscaled but for extreme magnitudes
+    (:data:`_EXACT_RANGE`), shape (C, H, W), float64, as ``backend.camera_sums`` gives
+    them for the frame alone) and ``view`` (the centre view, (H, W)).  One per frame of
+    the volume."""
     one = SignalPlan(np.zeros(1, dtype=np.int64), splan.iy0, splan.ix0, splan.weights,
                      splan.combos, splan.taps, splan.spatial, splan.extra)
     Sy, Sx = volume.shape[1:3]
@@ -169,11 +171,25 @@ def _framed_frames(volume: FramedVolume, splan: SignalPlan, backend) -> list[dic
                 raise InputError(f"volume has {int(np.count_nonzero(bad))} non-finite "
                                  f"values (NaN or inf) in frame {k}; first at index (t, "
                                  f"sy, sx, y, x) = {first}")
-            return {"amax": float(np.max(np.abs(frame))),
+            mag = np.abs(frame)
+            # the smallest magnitude but 0 (float64 only: every float32 sample is far
+            # from float64's subnormals, :data:`_EXACT_RANGE`)
+            nz = mag[mag > 0] if frame.dtype == np.float64 else None
+            return {"amax": float(np.max(mag)),
+                    "amin": float(nz.min()) if nz is not None and nz.size else None,
                     "sums": backend.camera_sums(frame[None], one, slice(None))[:, 0],
                     "view": frame[Sy // 2, Sx // 2].copy()}
         return fn
     return [volume.memo(k, key, per_frame(k)) for k in range(volume.shape[0])]
+
+
+# Where every sample's magnitude (but 0) lies within 2^-400 .. 2^400, the camera sums under
+# the unscaled weights (taps of magnitude 2^-30 or more, sums of at most a few hundred
+# terms) and every product and partial sum stay normal floats before and after the scale
+# (2^-400 .. 2^400 too): multiplying by a power of two is then exact in either order.
+# Outside it (float64 data near the ends of its range) the sums are taken under the
+# scaled weights, as the window's are.
+_EXACT_RANGE = (2.0 ** -400, 2.0 ** 400)
 
 
 def _framed_sums(frames: list[dict], needed: np.ndarray, scale: float,
@@ -553,7 +569,12 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         # a volume given frame by frame: each frame's sums (under the unscaled weights),
         # largest magnitude and centre view, read once; the scale from the magnitudes
         frames = _framed_frames(vol, plan.signal_plan(extra, scale=1.0), backend)
-        plan = replace(plan, scale=_unit_scale(max(f["amax"] for f in frames)))
+        amax = max(f["amax"] for f in frames)
+        plan = replace(plan, scale=_unit_scale(amax))
+        lo, hi = _EXACT_RANGE
+        factor = plan.scale
+        if amax > hi or any(f["amin"] is not None and f["amin"] < lo for f in frames):
+            frames, factor = _framed_frames(vol, plan.signal_plan(extra), backend), 1.0
     splan = plan.signal_plan(extra)
     band = s.band_rows
     if band is None:
@@ -602,7 +623,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         r1 = min(r0 + band, H - halo)
         band_rows_ = slice(r0 - halo, r1 + halo)
         if framed:
-            signals = backend.from_sums(_framed_sums(frames, splan.needed, plan.scale,
+            signals = backend.from_sums(_framed_sums(frames, splan.needed, factor,
                                                      band_rows_), splan)
         else:
             signals = backend.signals(vol, splan, band_rows_)

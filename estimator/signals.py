@@ -84,9 +84,12 @@ class FramedVolume:
     :func:`camera_sums`, per frame), its largest magnitude (with the finiteness check)
     and the reference view.  A caller that keeps these per frame across the steps of a
     series (``gridflow estimate --every 1``: each frame is in up to 17 windows) lets a
-    step filter only its new frames, and no step holds the window itself.  The maps are
+    step sum only its new frames over the views (the temporal and x/y filtering still
+    run over the window), and no step holds the window itself.  The maps are
     those of the same frames given as one array, bit for bit (the camera weights' scale
-    is a power of two, applied to the kept sums: :func:`estimator.driver._unit_scale`).
+    is a power of two, applied to the kept sums, :func:`estimator.driver._unit_scale`;
+    where a float64 frame's magnitudes leave 2^-400 .. 2^400 the sums are taken again
+    under the scaled weights, :data:`estimator.driver._EXACT_RANGE`).
 
     Attributes
     ----------

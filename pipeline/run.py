@@ -652,12 +652,11 @@ def run_step(job: dict, i: int, b: int) -> dict:
     with _OPENING:
         source, sink = _opened(job["source"], job["views"], json.dumps(job["sink"],
                                                                         sort_keys=True))
-    keep = job.get("cache_frames", 0)
     # what the estimator computes from each frame alone is kept for the frames a worker's
-    # steps share (Source.frame_value); of the decoded frames only the few being
-    # computed from (several threads each start on a new frame)
-    source.keep_values(keep)
-    source.cache_frames(min(keep, 2 * job.get("tasks", 1) + 1))
+    # steps share (Source.frame_value: one decode a frame, waited for by a second thread
+    # that needs it); decoded frames are not kept beside it
+    source.keep_values(job.get("cache_frames", 0))
+    source.cache_frames(0)
     ests, stamp = estimate_step(replace(job["plan"], source=source), i, b)
     t1 = time.perf_counter()
     sink.write(i, b, ests, stamp)
@@ -688,7 +687,8 @@ def _local(plan: Plan, o: RunOptions) -> tuple[int, int, int]:
 
 def frame_cache(plan: Plan, tasks: int, budget: int) -> int:
     """Frames a worker keeps the camera sums of (:meth:`gridflow.volume.Source.keep_values`;
-    counted here as decoded frames, which take more) for
+    counted here as decoded frames: 4 or 8 bytes a sample of every view, against 28 or 32
+    bytes a pixel for their sums and centre view, more on grids of 3 x 3 views or more) for
     ``tasks`` steps at once: a window and the frames the further steps reach beyond it,
     so that steps one frame apart decode one frame each; none where steps are cut into
     row bands (memory is short there), where steps do not share frames, or where the
@@ -877,12 +877,12 @@ def _run_tasks(plan: Plan, sink, todo, o: RunOptions, views, report: RunReport,
         # each worker process keeps its own frames, where they fit its memory limit
         # beside its threads' steps (none where a worker states no limit)
         limits = [w.get("memory_limit") or 0 for w in workers]
-        job["tasks"] = max((w.get("nthreads", 1) for w in workers), default=1)
-        job["cache_frames"] = (frame_cache(plan, job["tasks"], min(limits))
+        job["cache_frames"] = (frame_cache(plan, max(w.get("nthreads", 1) for w in workers),
+                                           min(limits))
                                if workers and all(limits) else 0)
     else:
         n, threads, budget = _local(plan, o)
-        job["threads"], job["tasks"] = threads, n
+        job["threads"] = threads
         job["cache_frames"] = frame_cache(plan, n, budget)
         unit = "step" if nb == 1 else "band"
         where = (f"this machine: {n} {unit}(s) at once, {threads} numba thread(s) each, "

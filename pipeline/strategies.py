@@ -104,7 +104,11 @@ class SinglePass:
         from gridflow.estimator import segment_object
 
         Sy, Sx = source.shape[1:3]
-        return segment_object(source.read(frame, frame + 1)[0, Sy // 2, Sx // 2])
+        # through frame_value: where a worker keeps its frames' values the view is
+        # kept for the later steps that read this frame (it is not decoded again)
+        view = source.frame_value(frame, ("centre view", Sy // 2, Sx // 2),
+                                  lambda f: f[Sy // 2, Sx // 2].copy(), np.float64)
+        return segment_object(view)
 
     def run(self, window: np.ndarray, geometry: CameraGeometry, ref: int,
             progress=None, mask=None) -> dict[str, Estimate]:

@@ -955,11 +955,15 @@ def test_a_frames_kept_values_are_computed_once_and_again_after_a_rewrite(
     new = src.frame_value(4, "sum", total, np.float32)
     assert decoded[7:] == [4] and len(calls) == 7
     assert new == (stored[4] + np.float32(1.0)).sum(dtype=np.float64)
+    # out of order: the frames farthest from the one computed go first (not the oldest)
+    src.frame_value(0, "sum", total, np.float32)
+    src.frame_value(1, "sum", total, np.float32)
+    assert sorted(src._reader._values) == [0, 1, 3], sorted(src._reader._values)
     plain = open_source(rec)
     assert plain.values_kept == 0
     plain.frame_value(2, "sum", total, np.float32)
     plain.frame_value(2, "sum", total, np.float32)
-    assert len(calls) == 9
+    assert len(calls) == 11
 
 
 @pytest.mark.parametrize("cache", [0, 6])

@@ -147,6 +147,15 @@ def open_recording_store(path) -> Source:
     return _ZarrReader.open(path)
 
 
+def _keep_nearest(kept: dict, capacity: int, t: int) -> None:
+    """Drop the frames of ``kept`` (frame -> entry) farthest from frame ``t`` until at
+    most ``capacity`` remain: steps run in order, up or down, and least-recently-used
+    would drop the very frame the next step reads next (a window read backwards missed
+    every frame)."""
+    while len(kept) > capacity:
+        del kept[max(kept, key=lambda f: (abs(f - t), f))]
+
+
 class _ZarrReader:
     def __init__(self, path: Path, group):
         self.path, self.group = path, group
@@ -230,8 +239,7 @@ class _ZarrReader:
                     kept = hit[1] if hit is not None and hit[0] == sig else {}
                     kept[key] = value
                     self._values[t] = (sig, kept)
-                    while len(self._values) > self._value_capacity:
-                        del self._values[max(self._values, key=lambda f: (abs(f - t), f))]
+                    _keep_nearest(self._values, self._value_capacity, t)
             return value
         finally:
             with self._lock:
@@ -265,11 +273,7 @@ class _ZarrReader:
             with self._lock:
                 if self._capacity:
                     self._cache[t] = (sig, frame)
-                    # the frames farthest from this one go first: steps run in order, up
-                    # or down, and least-recently-used would drop the very frame the next
-                    # step reads next (a window read backwards missed every frame)
-                    while len(self._cache) > self._capacity:
-                        del self._cache[max(self._cache, key=lambda f: (abs(f - t), f))]
+                    _keep_nearest(self._cache, self._capacity, t)
             return frame
         finally:
             with self._lock:

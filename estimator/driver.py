@@ -197,7 +197,8 @@ def _framed_sums(frames: list[dict], needed: np.ndarray, scale: float,
     """The camera sums of a band of a :class:`FramedVolume` (``frames`` from
     :func:`_framed_frames`), as ``backend.camera_sums`` gives those of the same frames
     as one array, bit for bit: the frames' unscaled sums times ``scale``, a power of two
-    (exact: every product and sum scales with it).
+    (exact: every product and sum scales with it; ``scale`` is 1 where the sums were
+    taken under the scaled weights, :data:`_EXACT_RANGE`).
 
     Returns
     -------
@@ -498,7 +499,9 @@ def estimate(volume: np.ndarray, focal_length: float, camera_spacing, *, model: 
     volume : ndarray, shape (T, Sy, Sx, H, W), float32 or float64
         ``V[t, sy, sx, y, x]``: frames, camera rows (growing with camera Y), camera
         columns (growing with camera X), image rows (down), image columns (right).
-        Intensities linear in radiance.  ``Sy = 1`` is a horizontal 1-D grid.
+        Intensities linear in radiance.  ``Sy = 1`` is a horizontal 1-D grid.  Or a
+        :class:`estimator.signals.FramedVolume` standing for one: the same maps, bit for
+        bit, from frames read one at a time (a recording's steps that share frames).
     focal_length : float
         Focal length in pixels.
     camera_spacing : (float, float)

@@ -687,8 +687,9 @@ def _local(plan: Plan, o: RunOptions) -> tuple[int, int, int]:
 
 def frame_cache(plan: Plan, tasks: int, budget: int) -> int:
     """Frames a worker keeps the camera sums of (:meth:`gridflow.volume.Source.keep_values`;
-    counted here as decoded frames: 4 or 8 bytes a sample of every view, against 28 or 32
-    bytes a pixel for their sums and centre view, more on grids of 3 x 3 views or more) for
+    counted here as decoded frames, ``Sy Sx`` samples a pixel, which on grids of 3 x 3
+    views or more take more than the 28 or 32 bytes a pixel of their sums and centre
+    view) for
     ``tasks`` steps at once: a window and the frames the further steps reach beyond it,
     so that steps one frame apart decode one frame each; none where steps are cut into
     row bands (memory is short there), where steps do not share frames, or where the

@@ -157,7 +157,8 @@ SIGNAL_TRIALS = 50
 def test_a_signal_at_random_times_leaves_the_old_outputs_or_a_whole_new_set(
         tmp_path, small_volume, models):
     """``gridflow estimate`` (one output, and --model all: three) is sent SIGTERM or SIGINT
-    at a random time from its start to a quarter past its measured end, 50 times.
+    at a random time from its start to a quarter past its measured end, 50 times (15
+    more against a duration measured again, should all fall on one side of the end).
     Every time the output folder holds exactly the expected outputs, each complete (it
     loads), all of them
     from the old run (sigma 2) or all from the new one (sigma 3), and nothing else (no
@@ -181,13 +182,28 @@ def test_a_signal_at_random_times_leaves_the_old_outputs_or_a_whole_new_set(
 
     assert subprocess.run(command(2), cwd=ROOT, capture_output=True).returncode == 0
     old = {n: (out / n).read_bytes() for n in names}
-    t0 = time.monotonic()
-    assert subprocess.run(command(3), cwd=ROOT, capture_output=True).returncode == 0
-    duration = time.monotonic() - t0
+
+    def measured():
+        # one uninterrupted run: how long the command takes under the machine's load now
+        t0 = time.monotonic()
+        assert subprocess.run(command(3), cwd=ROOT, capture_output=True).returncode == 0
+        return time.monotonic() - t0
+
+    duration = measured()
     assert state() == 3
     rng = np.random.default_rng(26)
     seen = {2.0: 0, 3.0: 0}
-    for trial in range(SIGNAL_TRIALS):
+    trials = SIGNAL_TRIALS
+    trial = 0
+    while True:
+        if trial == trials:
+            if (seen[2.0] and seen[3.0]) or trials > SIGNAL_TRIALS:
+                break
+            # every signal fell on one side of the rename: under the other tests' load the
+            # runs took longer than the one measured (CI, once: {2.0: 50, 3.0: 0}).  That
+            # is the sampling, not the property: measure again and draw more
+            duration = measured()
+            trials += SIGNAL_TRIALS * 3 // 10
         for n, data in old.items():                      # the old set back in place
             (out / n).write_bytes(data)
         sig = (signal.SIGTERM, signal.SIGINT)[trial % 2]
@@ -200,10 +216,11 @@ def test_a_signal_at_random_times_leaves_the_old_outputs_or_a_whole_new_set(
         p.send_signal(sig)
         _, err = p.communicate(timeout=60)
         seen[state()] += 1
+        trial += 1
     # both outcomes occurred: the signals fell before and after the rename
     assert seen[2.0] and seen[3.0], seen
     tried(f"signal at a random time during estimate ({'--model all' if models else 'one model'})",
-          SIGNAL_TRIALS)
+          trials)
 
 
 HCI_SIGNAL_TRIALS = 30

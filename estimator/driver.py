@@ -165,17 +165,21 @@ def _framed_frames(volume: FramedVolume, splan: SignalPlan, backend) -> list[dic
 
     def per_frame(k):
         def fn(frame):
-            bad = ~np.isfinite(frame)
-            if bad.any():
-                first = (k,) + tuple(int(i) for i in np.argwhere(bad)[0])
-                raise InputError(f"volume has {int(np.count_nonzero(bad))} non-finite "
-                                 f"values (NaN or inf) in frame {k}; first at index (t, "
-                                 f"sy, sx, y, x) = {first}")
-            mag = np.abs(frame)
+            # the backend's one-pass scan where it has one (as _check_volume), else numpy
+            scanned = backend.scan(frame[None])
+            if scanned is None or scanned[0]:
+                bad = ~np.isfinite(frame)
+                if bad.any():
+                    first = (k,) + tuple(int(i) for i in np.argwhere(bad)[0])
+                    raise InputError(f"volume has {int(np.count_nonzero(bad))} non-finite "
+                                     f"values (NaN or inf) in frame {k}; first at index "
+                                     f"(t, sy, sx, y, x) = {first}")
+            amax = float(np.max(np.abs(frame))) if scanned is None else float(scanned[1])
             # the smallest magnitude but 0 (float64 only: every float32 sample is far
             # from float64's subnormals, :data:`_EXACT_RANGE`)
-            nz = mag[mag > 0] if frame.dtype == np.float64 else None
-            return {"amax": float(np.max(mag)),
+            mag = np.abs(frame) if frame.dtype == np.float64 else None
+            nz = mag[mag > 0] if mag is not None else None
+            return {"amax": amax,
                     "amin": float(nz.min()) if nz is not None and nz.size else None,
                     "sums": backend.camera_sums(frame[None], one, slice(None))[:, 0],
                     "view": frame[Sy // 2, Sx // 2].copy()}

@@ -1,0 +1,103 @@
+"""The C allocator's settings for a ``gridflow`` process (glibc only).
+
+A step of a recording allocates and frees a few hundred arrays of a few MB to a few
+hundred MB (the structure tensor's planes, the FFTs' work arrays, the signals) on each of
+the threads that run steps at once.  Under glibc's defaults every such thread gets its
+own arena, whose free memory is handed back to the system after each array and faulted
+in (zeroed by the kernel) for the next, and arrays above a threshold that grows only up to
+32 MiB are mapped afresh every time.  Measured on a 512^2, 5 x 5, 17-frame affine
+recording step (two steps at once on 2 cores, ``bench/README.md``, *The allocator*): a
+fifth of the process's CPU time was the kernel's (page faults), and a step took about
+0.2 s more.
+
+:func:`tune_allocator` sets, with ``mallopt``, before any thread of the process starts:
+
+* one arena for all threads (``M_ARENA_MAX``): the threads reuse each other's freed
+  memory, instead of each arena holding its own (the peak memory fell as well);
+* arrays up to 32 MiB, glibc's largest setting, from the heap (``M_MMAP_THRESHOLD``),
+  larger ones mapped as before;
+* freed memory kept for the next step instead of being handed back after every array
+  (``M_TRIM_THRESHOLD``, up to 2 GiB free at the heap's top): the process keeps the
+  memory of its largest step until it exits, which is its peak anyway.
+
+Nothing is set where the C library is not glibc, or where the user set glibc's malloc
+variables (``MALLOC_ARENA_MAX``, ``MALLOC_MMAP_THRESHOLD_``, ... or ``GLIBC_TUNABLES``):
+theirs hold.  ``GRIDFLOW_MALLOC=system`` leaves the allocator as it is.  The estimates
+do not depend on any of this (the same arrays, the same arithmetic).  Only the
+command-line process is tuned: the library, imported into someone else's process, does
+not change that process's allocator, and workers of a ``dask.distributed`` cluster
+(``--connect``) run under their own settings.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import sys
+
+__all__ = ["tune_allocator", "SETTINGS"]
+
+# mallopt's parameter numbers (glibc's malloc.h)
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD, _M_ARENA_MAX = -1, -3, -8
+
+#: (name, mallopt parameter, value): what :func:`tune_allocator` sets
+SETTINGS = (
+    ("M_ARENA_MAX", _M_ARENA_MAX, 1),
+    # glibc refuses more than 32 MiB (DEFAULT_MMAP_THRESHOLD_MAX on 64-bit systems); setting
+    # it also stops glibc's own adjustment, which, with the trim threshold set, would
+    # otherwise map every array above 128 KiB
+    ("M_MMAP_THRESHOLD", _M_MMAP_THRESHOLD, 32 * 2**20),
+    # mallopt takes an int: the largest it takes, 2 GiB of free memory at the heap's top
+    ("M_TRIM_THRESHOLD", _M_TRIM_THRESHOLD, 2**31 - 1),
+)
+
+# the environment through which glibc's own malloc settings are given
+_USER_SETTINGS = ("MALLOC_ARENA_MAX", "MALLOC_ARENA_TEST", "MALLOC_MMAP_THRESHOLD_",
+                  "MALLOC_TRIM_THRESHOLD_", "MALLOC_TOP_PAD_", "MALLOC_MMAP_MAX_",
+                  "GLIBC_TUNABLES")
+
+
+def tune_allocator(environ=None) -> tuple[str, ...]:
+    """Set glibc's allocator for a process of steps at once (module docstring).
+
+    Call before the process starts its threads: an arena already given to a thread stays
+    its own.
+
+    Parameters
+    ----------
+    environ : mapping, optional
+        The environment to read the opt-outs from (default ``os.environ``).
+
+    Returns
+    -------
+    tuple of str
+        The names of the settings made (empty where none: not glibc, the user's own
+        settings, ``GRIDFLOW_MALLOC=system``, or a setting glibc refused, after which
+        the rest are not tried).
+    """
+    env = os.environ if environ is None else environ
+    if env.get("GRIDFLOW_MALLOC", "").strip().lower() == "system":
+        return ()
+    if any(name in env for name in _USER_SETTINGS):
+        return ()
+    if not sys.platform.startswith("linux"):
+        return ()
+    try:
+        libc_name = os.confstr("CS_GNU_LIBC_VERSION") or ""
+    except (ValueError, OSError):
+        libc_name = ""
+    if not libc_name.startswith("glibc"):
+        return ()
+    try:
+        libc = ctypes.CDLL(None)
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return ()
+    mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
+    mallopt.restype = ctypes.c_int
+    made = []
+    for name, param, value in SETTINGS:
+        if mallopt(param, value) != 1:
+            break
+        made.append(name)
+    return tuple(made)

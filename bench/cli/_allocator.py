@@ -4,24 +4,22 @@ A step of a recording allocates and frees a few hundred arrays of a few MB to a 
 hundred MB (the structure tensor's planes, the FFTs' work arrays, the signals) on each of
 the threads that run steps at once.  Under glibc's defaults every such thread gets its
 own arena, whose free memory is handed back to the system after each array and faulted
-in (zeroed by the kernel) for the next, and arrays above a threshold that grows only up to
-32 MiB are mapped afresh every time.  Measured on a 512^2, 5 x 5, 17-frame affine
-recording step (two steps at once on 2 cores, ``bench/README.md``, *The allocator*): a
-fifth of the process's CPU time was the kernel's (page faults), and a step took about
-0.2 s more.
+in (zeroed by the kernel) for the next, and arrays above a threshold that grows only up
+to 32 MiB are mapped afresh every time.  Measured on 512^2, 5 x 5 affine recording steps (two at once on 2 cores,
+``bench/README.md``, *The allocator*): the kernel's share of the process's CPU time (page
+faults) was 16-24 %.
 
 :func:`tune_allocator` sets, with ``mallopt``, before any thread of the process starts:
 
 * one arena for all threads (``M_ARENA_MAX``): the threads reuse each other's freed
   memory, instead of each arena holding its own (the peak memory fell as well);
-* arrays up to 32 MiB, glibc's largest setting, from the heap (``M_MMAP_THRESHOLD``),
-  larger ones mapped as before;
+* every array from the heap (``M_MMAP_MAX = 0``), none mapped on its own;
 * freed memory kept for the next step instead of being handed back after every array
   (``M_TRIM_THRESHOLD``, up to 2 GiB free at the heap's top): the process keeps the
   memory of its largest step until it exits, which is its peak anyway.
 
 Nothing is set where the C library is not glibc, or where the user set glibc's malloc
-variables (``MALLOC_ARENA_MAX``, ``MALLOC_MMAP_THRESHOLD_``, ... or ``GLIBC_TUNABLES``):
+variables (``MALLOC_ARENA_MAX``, ``MALLOC_MMAP_MAX_``, ... or ``GLIBC_TUNABLES``):
 theirs hold.  ``GRIDFLOW_MALLOC=system`` leaves the allocator as it is.  The estimates
 do not depend on any of this (the same arrays, the same arithmetic).  Only the
 command-line process is tuned: the library, imported into someone else's process, does
@@ -38,16 +36,17 @@ import sys
 __all__ = ["tune_allocator", "SETTINGS"]
 
 # mallopt's parameter numbers (glibc's malloc.h)
-_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD, _M_ARENA_MAX = -1, -3, -8
+_M_TRIM_THRESHOLD, _M_MMAP_MAX, _M_ARENA_MAX = -1, -4, -8
 
-#: (name, mallopt parameter, value): what :func:`tune_allocator` sets
+#: (name, mallopt parameter, value): what :func:`tune_allocator` sets, in this order
 SETTINGS = (
     ("M_ARENA_MAX", _M_ARENA_MAX, 1),
-    # glibc refuses more than 32 MiB (DEFAULT_MMAP_THRESHOLD_MAX on 64-bit systems); setting
-    # it also stops glibc's own adjustment, which, with the trim threshold set, would
-    # otherwise map every array above 128 KiB
-    ("M_MMAP_THRESHOLD", _M_MMAP_THRESHOLD, 32 * 2**20),
+    # no array mapped on its own: the large ones (the tensor's planes, 300 MB for an
+    # affine step at 512^2) come from the heap as the small ones do, instead of being
+    # mapped and faulted in anew each step
+    ("M_MMAP_MAX", _M_MMAP_MAX, 0),
     # mallopt takes an int: the largest it takes, 2 GiB of free memory at the heap's top
+    # (setting it stops glibc's own adjustment of it)
     ("M_TRIM_THRESHOLD", _M_TRIM_THRESHOLD, 2**31 - 1),
 )
 

@@ -112,42 +112,51 @@ def spatial_filter(a, kx, ky):
 
 
 @njit(parallel=True, cache=True)
-def _product_kernel(coef, a, b, out):
-    """``out[y, x] = sum_f coef[f] a[f, y, x] b[f, y, x]`` on the top-left (h, W) of
-    ``out``, zeros elsewhere (the FFT's padding); one row per task."""
+def _product_kernel(coefs, a, b, out):
+    """``out[k, y, x] = sum_f coefs[k, f] a[f, y, x] b[f, y, x]`` on the top-left (h, W)
+    of each ``out[k]``, zeros elsewhere (the FFT's padding); one row per task.  Each
+    output is summed over the frames in order, ``out += (c a) b``, whatever ``K``: the
+    same bits as one product at a time, with ``a`` and ``b`` read once for all ``K``."""
+    K = coefs.shape[0]
     F, h, W = a.shape
-    for y in prange(out.shape[0]):
-        for x in range(out.shape[1]):
-            out[y, x] = 0.0
+    for y in prange(out.shape[1]):
+        for k in range(K):
+            for x in range(out.shape[2]):
+                out[k, y, x] = 0.0
         if y < h:
             for f in range(F):
-                c = coef[f]
-                if c != 0.0:
-                    for x in range(W):
-                        out[y, x] += c * a[f, y, x] * b[f, y, x]
+                for k in range(K):
+                    c = coefs[k, f]
+                    if c != 0.0:
+                        for x in range(W):
+                            out[k, y, x] += c * a[f, y, x] * b[f, y, x]
 
 
-def weighted_product(coef, a, b, shape, out=None):
+def weighted_product(coefs, a, b, shape, out=None):
     """The frame-weighted products of :func:`estimator.spectral.structure_tensor_fft`
-    (its ``product``), in parallel over the rows.
+    (its ``product``), in parallel over the rows: several weightings of the same two
+    signals in one pass over them.
 
     Parameters
     ----------
-    coef : ndarray, shape (F,)
+    coefs : ndarray, shape (K, F)
+        One row of frame weights per product.
     a, b : ndarray, shape (F, h, W), float64, C-contiguous
     shape : (int, int)
-        Size of the zero-padded result, at least (h, W).
-    out : ndarray, shape ``shape``, float64, C-contiguous, optional
-        Where to write the result (the caller reuses one buffer for every product).
+        Size of each zero-padded result, at least (h, W).
+    out : ndarray, shape (K,) + ``shape``, float64, C-contiguous, optional
+        Where to write the results (the caller reuses one buffer for every product).
 
     Returns
     -------
-    ndarray, shape ``shape``
-        ``sum_f coef[f] a[f] b[f]`` in the top-left corner, zero elsewhere.
+    ndarray, shape (K,) + ``shape``
+        ``out[k]`` is ``sum_f coefs[k, f] a[f] b[f]`` in the top-left corner, zero
+        elsewhere.
     """
+    coefs = np.ascontiguousarray(np.atleast_2d(coefs), dtype=np.float64)
     if out is None:
-        out = np.empty(shape)
-    _product_kernel(np.ascontiguousarray(coef, dtype=np.float64), a, b, out)
+        out = np.empty((coefs.shape[0],) + tuple(shape))
+    _product_kernel(coefs, a, b, out)
     return out
 
 

@@ -116,6 +116,12 @@ MUTANTS = [
            "cmadd(ypass[py][keep_rows], KX[px][None, :], 1.0, acc[e])",
            (T + "test_estimator_properties.py::test_fast_path_agrees_with_reference",),
            "a term that comes twice in a zoom-corrected entry summed once"),
+    Mutant("spectral-batch-order", "estimator/spectral.py",
+           "            before[v].add(u)", "            pass",
+           (T + "test_estimator_properties.py::"
+                "test_the_products_in_batches_are_the_products_one_by_one",),
+           "the products batched by pair without keeping the summed planes' order "
+           "(other bits)"),
     Mutant("signals-time-derivative", "estimator/signals.py",
            '        taps["d"] = along_t(time.derivative)', '        taps["d"] = along_t(time.prefilter)',
            (TRUTH,), "I_t filtered with the temporal prefilter"),
@@ -147,8 +153,8 @@ MUTANTS = [
            (T + "test_estimator_properties.py::test_fast_spatial_filter_matches_numpy",),
            "the y filter's edge clamped one row early"),
     Mutant("kernels-product", "estimator/_kernels.py",
-           "                        out[y, x] += c * a[f, y, x] * b[f, y, x]",
-           "                        out[y, x] += c * a[f, y, x] * a[f, y, x]",
+           "                            out[k, y, x] += c * a[f, y, x] * b[f, y, x]",
+           "                            out[k, y, x] += c * a[f, y, x] * a[f, y, x]",
            (T + "test_estimator_properties.py::test_fast_path_agrees_with_reference",),
            "the FFT tensor's product of a signal with itself"),
     Mutant("driver-principal-point", "estimator/driver.py",

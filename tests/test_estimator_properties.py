@@ -203,6 +203,45 @@ def test_a_volume_given_frame_by_frame_gives_the_maps_of_its_array():
                             backend, motion, band, m, q)
 
 
+def test_the_products_in_batches_are_the_products_one_by_one(monkeypatch):
+    """The FFT tensor makes each pair of signals' products under every power of t in one
+    pass (estimator.spectral._batches, estimator._kernels.weighted_product): every plane
+    is the same bits as with the products made one at a time in the former order, on
+    both motion models (with the zoom-blur correction's summed planes, whose terms must
+    be added in the former order), and the passes are fewer than the products."""
+    from gridflow.estimator import _kernels, spectral
+    from gridflow.estimator.models import (ROWS, ZOOM_ROW_SIGNALS, covering_rows,
+                                           get_model, zoom_rows)
+    from gridflow.estimator.tensor import gaussian_moment_kernels, zoom_terms
+
+    rng = np.random.default_rng(5)
+    F, h, W, halo = 7, 40, 48, 6
+    tvals = np.arange(F) - F // 2
+    kernels = gaussian_moment_kernels(2.0, 2 * halo + 1)
+    batches = spectral._batches
+    for motion in ("translation", "affine"):
+        rows = covering_rows([get_model("full", 2, False, motion)])
+        ext = zoom_rows(rows)
+        sig = {({**ROWS, **ZOOM_ROW_SIGNALS})[r][0]: None for r in ext}
+        sig = {n: rng.standard_normal((F, h, W)) for n in sig}
+        run = dict(cols=slice(halo, W - halo), fft="scipy", workers=1,
+                   product=_kernels.weighted_product, cmul=_kernels.complex_multiply,
+                   cmadd=_kernels.complex_multiply_add, combine=zoom_terms(ext, rows))
+        seen = []
+        monkeypatch.setattr(spectral, "_batches",
+                            lambda order, summed: seen.append(batches(order, summed))
+                            or seen[-1])
+        merged, idx = spectral.structure_tensor_fft(sig, tvals, ext, kernels, halo, **run)
+        monkeypatch.setattr(spectral, "_batches",
+                            lambda order, summed: [[g] for g in order])
+        single, idx1 = spectral.structure_tensor_fft(sig, tvals, ext, kernels, halo, **run)
+        monkeypatch.undo()
+        products = sum(map(len, seen[0]))
+        assert len(seen[0]) < products and max(map(len, seen[0])) > 1, (motion, seen[0])
+        np.testing.assert_array_equal(idx, idx1)
+        assert np.array_equal(merged, single), motion
+
+
 def test_a_frame_given_frame_by_frame_is_checked_as_an_array_is():
     """A non-finite sample of a FramedVolume is refused with the frame and index, as
     in an array; a volume of the wrong number of axes or type is refused before any

@@ -154,8 +154,13 @@ def weighted_product(coefs, a, b, shape, out=None):
         elsewhere.
     """
     coefs = np.ascontiguousarray(np.atleast_2d(coefs), dtype=np.float64)
+    want = (coefs.shape[0],) + tuple(shape)
     if out is None:
-        out = np.empty((coefs.shape[0],) + tuple(shape))
+        out = np.empty(want)
+    # the kernel checks no bounds: a smaller or strided out would be written past
+    if out.shape != want or not out.flags.c_contiguous or a.shape[1:] > tuple(shape):
+        raise ValueError(f"weighted_product: out must be C-contiguous of shape {want} "
+                         f"(got {out.shape}) and hold a of shape {a.shape}")
     _product_kernel(coefs, a, b, out)
     return out
 

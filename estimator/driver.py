@@ -249,7 +249,9 @@ def _band_model(packed: bool, W: int, n_ext: int, n_out: int, n_signals: int, fr
     if packed:
         planes = n_out * (n_out + 1) // 2
         spectrum = 16 * (W // 2 + 1)
-        every_row = n_signals * frames * 8 * W + 4 * spectrum
+        # the signals, four complex half-spectra and up to three real products (a pair
+        # of signals under each power of t, estimator.spectral)
+        every_row = n_signals * frames * 8 * W + 4 * spectrum + 3 * 8 * W
         return every_row + planes * (8 * W + spectrum), 2 * halo * every_row
     # J and, as large, the zoom-blur correction's product T J (T^T)
     return 2 * W * n_ext * n_ext * 8, 0
@@ -263,7 +265,8 @@ def band_rows(backend, W: int, n_ext: int, n_out: int, n_signals: int, frames: i
     A dense backend holds J as ``n_ext x n_ext`` matrices per pixel, twice (the zoom-blur
     correction's ``T J T^T`` is made from it).  An FFT backend holds, over the band and
     its ``halo`` rows either side, the ``n_signals`` base signals of the window's
-    ``frames`` and four complex half-spectra (a product's and its y-passes'), and over
+    ``frames``, four complex half-spectra (a product's and its y-passes') and up to
+    three real products (one pair of signals under each power of t), and over
     the band's own rows the packed tensor (one plane per distinct entry of the ``n_out``
     rows, at most ``n_out (n_out + 1) / 2``) and as many half-spectra while it sums them
     (``tests/test_estimator_properties.py`` measures a band's peak against this).

@@ -11,8 +11,17 @@ import pytest
 
 from gridflow.bench.cli import _allocator
 
-GLIBC = (sys.platform.startswith("linux")
-         and (os.confstr("CS_GNU_LIBC_VERSION") or "").startswith("glibc"))
+
+
+def _glibc() -> bool:
+    try:
+        return (sys.platform.startswith("linux")
+                and (os.confstr("CS_GNU_LIBC_VERSION") or "").startswith("glibc"))
+    except (ValueError, OSError):
+        return False
+
+
+GLIBC = _glibc()
 
 # A fresh process: tune (or not); hold 16 arrays of 20 MiB and one of 200 MiB, free them, then four threads that each
 # allocate and free arrays.  It prints glibc's own account: the settings made, the heaps
@@ -58,8 +67,9 @@ def _probe(mode: str, **env):
     out = subprocess.run([sys.executable, "-c", _PROBE, mode], capture_output=True,
                          text=True, check=True,
                          env={**{k: v for k, v in os.environ.items()
-                                 if k not in _allocator._USER_SETTINGS
-                                 and k != "GRIDFLOW_MALLOC"}, **env})
+                                 if not k.startswith("MALLOC_")
+                                 and k not in ("GLIBC_TUNABLES", "GRIDFLOW_MALLOC")},
+                              **env})
     made, heaps, mapped, free = (int(v) for v in out.stdout.split())
     return made, heaps, mapped, free
 
@@ -69,7 +79,7 @@ def _probe(mode: str, **env):
 def test_the_settings_give_one_arena_heap_arrays_and_kept_free_memory():
     """Tuned: the threads share one arena; 16 arrays of 20 MiB and one of 200 MiB come
     from the heap (no mapped chunk); once freed, the heap keeps all of
-    it for the next step.  Untuned, the same process has an arena per thread, maps every
+    it for the next step.  Untuned, the same process has more than one arena, maps every
     one of the arrays and keeps none of them (the control: the probe sees the
     difference)."""
     made, heaps, mapped, free = _probe("tune")
@@ -95,11 +105,44 @@ def test_the_users_own_settings_and_the_opt_out_are_left_alone():
 
 
 def test_nothing_is_set_where_the_user_says_so():
-    """The opt-outs return before any call into the C library (so on every platform)."""
+    """The opt-outs return before any call into the C library (so on every platform):
+    any MALLOC_* variable, glibc's malloc tunables, GRIDFLOW_MALLOC=system; tunables of
+    other parts of glibc are not the user's malloc settings."""
     for env in ({"GRIDFLOW_MALLOC": "system"}, {"GRIDFLOW_MALLOC": " System "},
-                {"MALLOC_ARENA_MAX": "4"}, {"GLIBC_TUNABLES": "glibc.malloc.arena_max=4"},
+                {"MALLOC_ARENA_MAX": "4"}, {"MALLOC_PERTURB_": "0"},
+                {"GLIBC_TUNABLES": "glibc.malloc.arena_max=4"},
                 {"MALLOC_TRIM_THRESHOLD_": "0"}):
         assert _allocator.tune_allocator(env) == ()
+    assert not _allocator._users_own({"GLIBC_TUNABLES": "glibc.pthread.rseq=0"})
+    assert _allocator._users_own({"GLIBC_TUNABLES": "glibc.pthread.rseq=0:"
+                                                    "glibc.malloc.mmap_max=1"})
+
+
+@pytest.mark.skipif(not GLIBC, reason="the settings are glibc's")
+def test_the_console_script_tunes_before_numpy_and_threads(tmp_path):
+    """gridflow's own process tunes first thing: numpy not yet imported, no thread but
+    the main one (an arena already given to a thread would stay its own)."""
+    code = textwrap.dedent("""
+        import sys, threading
+        from gridflow.bench.cli import _allocator
+        real = _allocator.tune_allocator
+        def spy():
+            print("STATE", "numpy" in sys.modules, threading.active_count(), len(real()))
+            return ()
+        _allocator.tune_allocator = spy
+        # parsed, then refused (no such input): past the parser, which imports numpy
+        sys.argv = ["gridflow", "estimate", "no-such-input.npz", "-o", "no-such-output.npz"]
+        from gridflow.bench.cli import main
+        print("STATUS", main())
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=tmp_path,
+                         env={k: v for k, v in os.environ.items()
+                              if not k.startswith("MALLOC_")
+                              and k not in ("GLIBC_TUNABLES", "GRIDFLOW_MALLOC")})
+    state = [line.split()[1:] for line in out.stdout.splitlines()
+             if line.startswith(("STATE", "STATUS"))]
+    assert state == [["False", "1", str(len(_allocator.SETTINGS))], ["2"]], out.stdout
 
 
 def test_only_the_command_lines_own_process_is_tuned(monkeypatch):

@@ -89,14 +89,6 @@ def main(argv=None) -> int:
     import signal
     import threading
 
-    from ._allocator import tune_allocator
-
-    if argv is None:
-        # the command line's own process (the console script, python -m): before numpy,
-        # numba or any thread starts, as an arena given to a thread stays its own.  Not
-        # where main is called with arguments from someone's process (tests, scripts)
-        tune_allocator()
-
     # the parser reads the estimator's defaults: numpy, scipy and numba import here, the
     # first ~0.3 s.  Ctrl-C there gave a bare KeyboardInterrupt traceback, or, inside
     # numpy's C import, numpy's ImportError ("could not import module datetime") and
@@ -106,6 +98,14 @@ def main(argv=None) -> int:
     if main_thread:
         before = signal.signal(signal.SIGINT, lambda sig, frame: held.append(sig))
     try:
+        if argv is None:
+            from ._allocator import tune_allocator
+
+            # the command line's own process (the console script, python -m): before
+            # numpy, numba or any thread starts, as an arena given to a thread stays its
+            # own.  Not where main is called with arguments from someone's process
+            # (tests, scripts)
+            tune_allocator()
         a = build_parser().parse_args(argv)
         _log_to_stderr()
         from gridflow.pipeline.executors import Terminated, signals_raise

@@ -7,7 +7,7 @@ own arena, whose free memory is handed back to the system after each array and f
 in (zeroed by the kernel) for the next, and arrays above a threshold that grows only up
 to 32 MiB are mapped afresh every time.  Measured on 512^2, 5 x 5 affine recording steps (two at once on 2 cores,
 ``bench/README.md``, *The allocator*): the kernel's share of the process's CPU time (page
-faults) was 16-24 %.
+faults) was 16-26 %.
 
 :func:`tune_allocator` sets, with ``mallopt``, before any thread of the process starts:
 
@@ -19,17 +19,23 @@ faults) was 16-24 %.
   memory of its largest step until it exits, which is its peak anyway.
 
 Nothing is set where the C library is not glibc, or where the user set glibc's malloc
-variables (``MALLOC_ARENA_MAX``, ``MALLOC_MMAP_MAX_``, ... or ``GLIBC_TUNABLES``):
+variables (any ``MALLOC_*`` variable, or ``glibc.malloc.*`` in ``GLIBC_TUNABLES``):
 theirs hold.  ``GRIDFLOW_MALLOC=system`` leaves the allocator as it is.  The estimates
 do not depend on any of this (the same arrays, the same arithmetic).  Only the
 command-line process is tuned: the library, imported into someone else's process, does
-not change that process's allocator, and workers of a ``dask.distributed`` cluster
-(``--connect``) run under their own settings.
+not change that process's allocator, and worker processes (``gridflow sweep
+--workers``'s pool, a ``dask.distributed`` cluster's workers, ``--connect``) run under
+their own settings.
+
+What it costs: the process keeps the memory of its largest step until it exits; free
+memory inside the heap (not at its top) is not handed back either, so a long run's
+memory could grow by fragmentation (44 affine steps at 512^2 measured flat); a large
+``numpy.zeros`` taken from memory the heap kept is zeroed by glibc's ``calloc`` instead
+of arriving as fresh zero pages.
 """
 
 from __future__ import annotations
 
-import ctypes
 import os
 import sys
 
@@ -50,10 +56,11 @@ SETTINGS = (
     ("M_TRIM_THRESHOLD", _M_TRIM_THRESHOLD, 2**31 - 1),
 )
 
-# the environment through which glibc's own malloc settings are given
-_USER_SETTINGS = ("MALLOC_ARENA_MAX", "MALLOC_ARENA_TEST", "MALLOC_MMAP_THRESHOLD_",
-                  "MALLOC_TRIM_THRESHOLD_", "MALLOC_TOP_PAD_", "MALLOC_MMAP_MAX_",
-                  "GLIBC_TUNABLES")
+
+def _users_own(env) -> bool:
+    """Whether the environment gives glibc malloc settings of the user's own."""
+    return (any(name.startswith("MALLOC_") for name in env)
+            or "glibc.malloc." in env.get("GLIBC_TUNABLES", ""))
 
 
 def tune_allocator(environ=None) -> tuple[str, ...]:
@@ -77,7 +84,7 @@ def tune_allocator(environ=None) -> tuple[str, ...]:
     env = os.environ if environ is None else environ
     if env.get("GRIDFLOW_MALLOC", "").strip().lower() == "system":
         return ()
-    if any(name in env for name in _USER_SETTINGS):
+    if _users_own(env):
         return ()
     if not sys.platform.startswith("linux"):
         return ()
@@ -88,9 +95,11 @@ def tune_allocator(environ=None) -> tuple[str, ...]:
     if not libc_name.startswith("glibc"):
         return ()
     try:
+        import ctypes
+
         libc = ctypes.CDLL(None)
         mallopt = libc.mallopt
-    except (OSError, AttributeError):
+    except (ImportError, OSError, AttributeError):
         return ()
     mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
     mallopt.restype = ctypes.c_int

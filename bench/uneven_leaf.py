@@ -120,6 +120,8 @@ def run(cache="work/cube", *, progress: bool = True):
 
     sc = scene()
     reach = DEFAULTS["window"] // 2
+    # the stores go beside the render cache (a fresh checkout has neither yet)
+    Path(cache).parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="uneven-leaf-", dir=Path(cache).parent) as tmp:
         rec = Path(tmp) / "leaf.zarr"
         for line in make_leaf_recording(rec, sc, cache=cache, progress=progress):

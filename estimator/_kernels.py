@@ -158,7 +158,8 @@ def weighted_product(coefs, a, b, shape, out=None):
     if out is None:
         out = np.empty(want)
     # the kernel checks no bounds: a smaller or strided out would be written past
-    if out.shape != want or not out.flags.c_contiguous or a.shape[1:] > tuple(shape):
+    if (out.shape != want or not out.flags.c_contiguous
+            or any(n < m for n, m in zip(want[1:], a.shape[1:]))):
         raise ValueError(f"weighted_product: out must be C-contiguous of shape {want} "
                          f"(got {out.shape}) and hold a of shape {a.shape}")
     _product_kernel(coefs, a, b, out)

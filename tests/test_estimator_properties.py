@@ -243,6 +243,21 @@ def test_the_products_in_batches_are_the_products_one_by_one(monkeypatch):
         assert np.array_equal(merged.view(np.uint64), single.view(np.uint64)), motion
 
 
+def test_the_product_kernel_refuses_an_output_it_would_overrun():
+    """weighted_product's numba kernel checks no bounds: an out of fewer products, fewer
+    rows or columns than the signals, or not C-contiguous, is refused before it runs."""
+    from gridflow.estimator._kernels import weighted_product
+
+    a = np.ones((3, 39, 100))
+    coefs = np.ones((2, 3))
+    assert weighted_product(coefs, a, a, (40, 100))[:, :39, :100].min() == 3.0
+    for shape, out in (((40, 48), None), ((38, 100), None),
+                       ((40, 100), np.empty((1, 40, 100))),
+                       ((40, 100), np.empty((2, 40, 200))[:, :, ::2])):
+        with pytest.raises(ValueError, match="out must be C-contiguous"):
+            weighted_product(coefs, a, a, shape, out)
+
+
 def test_a_frame_given_frame_by_frame_is_checked_as_an_array_is():
     """A non-finite sample of a FramedVolume is refused with the frame and index, as
     in an array; a volume of the wrong number of axes or type is refused before any

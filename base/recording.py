@@ -166,13 +166,14 @@ class _ZarrReader:
         self._per_frame = [range(-(-n // c)) for n, c in zip(vol.shape[1:], self._grid[1:])]
         # decoded whole frames (as stored, checked finite) kept for the next steps:
         # frame -> (signature of its chunk files, frames); see cache_frames
+        # decoded frames (see cache_frames) and what the estimator computed from a frame
+        # alone (see keep_values), each frame -> (signature, {key: value}); (frame, key)
+        # -> Event while a thread computes it (_memoised)
         self._cache: dict = {}
-        self._pending: dict = {}                 # frame -> Event, while a thread decodes it
+        self._pending: dict = {}
         self._capacity = 0
-        # what the estimator computed from a frame alone, kept for the next steps:
-        # frame -> (signature, {key: value}); see keep_values
         self._values: dict = {}
-        self._pending_values: dict = {}          # (frame, key) -> Event, while computed
+        self._pending_values: dict = {}
         self._value_capacity = 0
         self._lock = threading.Lock()
 
@@ -209,21 +210,9 @@ class _ZarrReader:
         """``fn(frame t)`` (decoded, checked finite, as ``dtype``), kept under ``key``
         while frame ``t``'s chunk files are those it was computed from; a value another
         thread is computing is waited for, not computed twice."""
-        sig = self._signature(t)
-        while True:
-            with self._lock:
-                hit = self._values.get(t)
-                if hit is not None and hit[0] == sig and key in hit[1]:
-                    return hit[1][key]
-                pending = self._pending_values.get((t, key))
-                mine = pending is None
-                if mine:
-                    pending = self._pending_values[(t, key)] = threading.Event()
-            if mine:
-                break
-            pending.wait()
-        try:
-            # as read() reads it: a missing chunk named, an undecodable one a RecordingError
+        def compute():
+            # as read() reads it: a missing chunk named, an undecodable one a
+            # RecordingError
             self.check_present(t, t + 1)
             try:
                 frame = self._frame(t)
@@ -232,19 +221,47 @@ class _ZarrReader:
             except Exception as exc:
                 raise RecordingError(self._unreadable(t, t + 1, 0, self.volume.shape[3],
                                                       exc)) from None
-            value = fn(frame if frame.dtype == dtype else frame.astype(dtype))
+            return fn(frame if frame.dtype == dtype else frame.astype(dtype))
+
+        return self._memoised(self._values, self._pending_values,
+                              lambda: self._value_capacity, t, key, compute)
+
+    def _memoised(self, kept: dict, pending: dict, capacity, t: int, key, compute):
+        """``compute()`` for frame ``t`` under ``key``, from ``kept`` (frame ->
+        (signature, {key: value})) while the frame's chunk files are those it was
+        computed from, else computed and kept (up to ``capacity()`` frames, the farthest
+        from ``t`` dropped first); a value another thread is computing (``pending``:
+        (frame, key) -> Event) is waited for, not computed twice."""
+        sig = self._signature(t)
+        while True:
             with self._lock:
-                if self._value_capacity:
-                    hit = self._values.get(t)
-                    kept = hit[1] if hit is not None and hit[0] == sig else {}
-                    kept[key] = value
-                    self._values[t] = (sig, kept)
-                    _keep_nearest(self._values, self._value_capacity, t)
+                hit = kept.get(t)
+                if hit is not None and hit[0] == sig and key in hit[1]:
+                    return hit[1][key]
+                event = pending.get((t, key))
+                mine = event is None
+                if mine:
+                    event = pending[(t, key)] = threading.Event()
+            if mine:
+                break
+            # then look again: kept by the other thread, or (it failed, or the frame was
+            # dropped since) computed here
+            event.wait()
+        try:
+            value = compute()
+            with self._lock:
+                most = capacity()
+                if most:
+                    hit = kept.get(t)
+                    entry = hit[1] if hit is not None and hit[0] == sig else {}
+                    entry[key] = value
+                    kept[t] = (sig, entry)
+                    _keep_nearest(kept, most, t)
             return value
         finally:
             with self._lock:
-                del self._pending_values[t, key]
-            pending.set()
+                del pending[t, key]
+            event.set()
 
     def _signature(self, frame: int) -> tuple:
         return tuple(file_states(self.files(frame, frame + 1)))
@@ -252,33 +269,13 @@ class _ZarrReader:
     def _frame(self, t: int) -> np.ndarray:
         """Frame ``t`` decoded and checked, from the cache where it is still current; a
         frame another thread is decoding is waited for, not decoded twice."""
-        sig = self._signature(t)
-        while True:
-            with self._lock:
-                hit = self._cache.get(t)
-                if hit is not None and hit[0] == sig:
-                    return hit[1]
-                pending = self._pending.get(t)
-                mine = pending is None
-                if mine:
-                    pending = self._pending[t] = threading.Event()
-            if mine:
-                break
-            # then look again: kept by the other thread, or (it failed, or the frame was
-            # dropped since) decoded here
-            pending.wait()
-        try:
+        def decode():
             frame = np.asarray(self.volume[t])
             self._check_finite(frame, t)
-            with self._lock:
-                if self._capacity:
-                    self._cache[t] = (sig, frame)
-                    _keep_nearest(self._cache, self._capacity, t)
             return frame
-        finally:
-            with self._lock:
-                del self._pending[t]
-            pending.set()
+
+        return self._memoised(self._cache, self._pending, lambda: self._capacity, t,
+                              "frame", decode)
 
     def _check_finite(self, out: np.ndarray, start: int) -> None:
         bad = ~np.isfinite(out)

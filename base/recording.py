@@ -226,6 +226,19 @@ class _ZarrReader:
         return self._memoised(self._values, self._pending_values,
                               lambda: self._value_capacity, t, key, compute)
 
+    def span_value(self, t: int, span: tuple, key, fn):
+        """``fn()`` (a value computed from frames ``span``), kept with frame ``t``'s
+        values while the chunk files of every frame of ``span`` are those it was
+        computed from (their signatures are part of its key); waited for, not computed
+        twice, as :meth:`frame_value`."""
+        for u in span:
+            if not 0 <= u < self.volume.shape[0]:
+                raise RecordingError(f"{self.path}/volume: frame {u} requested of "
+                                     f"0..{self.volume.shape[0] - 1}")
+        sources = tuple(self._signature(u) for u in span)
+        return self._memoised(self._values, self._pending_values,
+                              lambda: self._value_capacity, t, (key, span, sources), fn)
+
     def _memoised(self, kept: dict, pending: dict, capacity, t: int, key, compute):
         """``compute()`` for frame ``t`` under ``key``, from ``kept`` (frame ->
         (signature, {key: value})) while the frame's chunk files are those it was

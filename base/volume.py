@@ -334,6 +334,17 @@ class Source:
             return value(int(t), (dtype.str, key), fn, dtype)
         return fn(self.read(int(t), int(t) + 1, dtype=dtype)[0])
 
+    def span_value(self, t: int, span, key, fn):
+        """``fn()``, a value computed from frames ``span`` (through :meth:`frame_value`),
+        kept under frame ``t`` and ``key`` where :meth:`keep_values` asked for it, for
+        later calls while the frames of ``span`` are those it was computed from: a
+        frame's filtered signals, from the camera sums of the frames its temporal taps
+        reach (:class:`gridflow.estimator.signals.FramedVolume`)."""
+        value = getattr(self._reader, "span_value", None)
+        if value is not None and self.values_kept:
+            return value(int(t), tuple(int(u) for u in span), key, fn)
+        return fn()
+
     def truth(self, frame: int, names=None) -> dict[str, np.ndarray]:
         """Ground truth at the reference camera and ``frame``: name to ``(H, W)`` float64,
         for ``names`` (default all of :attr:`truth_names`); empty where the source has

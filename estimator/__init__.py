@@ -21,13 +21,13 @@ from .result import Estimate
 from .settings import COMBINE, DEFAULTS, METHODS, EstimatorSettings, InputError
 
 __all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
-           "window_halo", "band_halo", "temporal_reach", "estimate_memory", "segment_object",
-           "MODELS",
+           "window_halo", "band_halo", "temporal_reach", "estimate_memory",
+           "kept_frame_bytes", "segment_object", "MODELS",
            "MOTIONS", "METHODS", "COMBINE", "FILTER_NAMES", "DEFAULTS"]
 
 _LAZY = {"estimate": "driver", "estimate_models": "driver", "window_halo": "driver",
          "band_halo": "driver", "temporal_reach": "driver", "estimate_memory": "driver",
-         "segment_object": "masks"}
+         "kept_frame_bytes": "driver", "segment_object": "masks"}
 
 
 def __getattr__(name):

@@ -124,6 +124,9 @@ class Backend:
     name = "numpy"
     # whether tensor() returns a PackedTensor (estimator.driver.band_rows sizes its bands)
     packed = False
+    # whether tensor() takes signals given frame by frame (estimator.signals.FrameStack:
+    # a recording's frames kept across its steps, estimator.driver)
+    frame_stacks = False
     solve_affine = staticmethod(solve_affine)
 
     def scan(self, volume: np.ndarray):
@@ -233,13 +236,34 @@ class NumbaBackend(Backend):
         return {k: self._kernels.spatial_filter(a, kx, ky)
                 for k, (a, kx, ky) in sig.spatial_jobs(ct, plan.spatial, plan.extra).items()}
 
+    frame_stacks = True
+
+    def _frames_product(self):
+        """The tensor's ``product`` over :class:`~estimator.signals.FrameStack` signals."""
+        made = {}
+
+        def frames(stack):
+            # each signal's frames checked and addressed once for all its products
+            if id(stack) not in made:
+                made[id(stack)] = (stack, self._kernels.frames_of(stack.frames))
+            return made[id(stack)][1]
+
+        def product(coefs, a, b, shape, out):
+            # the scales into the frame weights: ((c s_a s_b) a) b rounds as
+            # (c (s_a a)) (s_b b) does, for powers of two within the normal range
+            return self._kernels.weighted_product_frames(
+                coefs * (a.scale * b.scale), frames(a), frames(b), shape, out)
+        return product
+
     def tensor(self, signals: dict, plan: TensorPlan) -> PackedTensor:
         from .spectral import structure_tensor_fft
 
+        framed = isinstance(next(iter(signals.values())), sig.FrameStack)
+        product = self._frames_product() if framed else self._kernels.weighted_product
         planes, idx = structure_tensor_fft(signals, plan.tvals, plan.rows, plan.kernels,
                                            plan.radius + plan.spatial_radius,
                                            cols=plan.cols, fft="scipy", workers=self.threads,
-                                           product=self._kernels.weighted_product,
+                                           product=product,
                                            cmul=self._kernels.complex_multiply,
                                            cmadd=self._kernels.complex_multiply_add,
                                            combine=plan.combine)

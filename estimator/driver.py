@@ -27,7 +27,7 @@ from .pooling import (bell, bell_radius, bell_square_sum, fit_variance, local_li
                       texture_reach, textured_windows)
 from .result import Estimate
 from .settings import EstimatorSettings, InputError
-from .signals import FramedVolume, SignalPlan, signal_plan
+from .signals import FramedVolume, FrameStack, SignalPlan, signal_plan
 from .tensor import gaussian_moment_kernels, scaled, zoom_corrected, zoom_terms
 
 __all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
@@ -160,8 +160,7 @@ def _framed_frames(volume: FramedVolume, splan: SignalPlan, backend) -> list[dic
     one = SignalPlan(np.zeros(1, dtype=np.int64), splan.iy0, splan.ix0, splan.weights,
                      splan.combos, splan.taps, splan.spatial, splan.extra)
     Sy, Sx = volume.shape[1:3]
-    key = ("frame", backend.name, splan.iy0, splan.ix0, splan.weights.shape,
-           splan.weights.tobytes())
+    key = _frame_key(splan, backend)
 
     def per_frame(k):
         def fn(frame):
@@ -185,6 +184,59 @@ def _framed_frames(volume: FramedVolume, splan: SignalPlan, backend) -> list[dic
                     "view": frame[Sy // 2, Sx // 2].copy()}
         return fn
     return [volume.memo(k, key, per_frame(k)) for k in range(volume.shape[0])]
+
+
+def _frame_key(splan: SignalPlan, backend) -> tuple:
+    """What a frame's kept values of :func:`_framed_frames` depend on beside the frame."""
+    return ("frame", backend.name, splan.iy0, splan.ix0, splan.weights.shape,
+            splan.weights.tobytes())
+
+
+# Where every sample's magnitude (but 0) lies within 2^-200 .. 2^200, the signals under the
+# unscaled weights, their products and the products' frame weights times the scale's
+# square (a power of two) stay normal floats: the products of signals kept frame by frame
+# (:func:`_kept_signals`) are then those of the scaled window's signals, bit for bit.
+_KEPT_RANGE = (2.0 ** -200, 2.0 ** 200)
+
+
+def _kept_signals(volume: FramedVolume, frames: list[dict], splan: SignalPlan,
+                  out_frames: np.ndarray, scale: float, backend) -> dict[str, FrameStack]:
+    """The signals of a :class:`FramedVolume`'s window, frame by frame: for each frame
+    of the temporal window (``out_frames``, window indices), its base signals from the
+    unscaled camera sums of the frames its temporal taps reach (``frames`` from
+    :func:`_framed_frames`), through ``volume.derive`` so that a caller keeps them for
+    the next steps, which then filter only their new frames.  The signals are those of
+    ``backend.from_sums`` on the window's sums as one array (each frame's temporal taps
+    add the same terms in the same order, and the x/y filtering is per frame), up to
+    the scale, which the products take (:class:`FrameStack`).
+
+    Returns
+    -------
+    dict of str to FrameStack
+        Each of F frames of shape (H, W).
+    """
+    taps = splan.taps
+    base = (_frame_key(splan, backend), str(np.dtype(volume.dtype)), splan.extra,
+            tuple(k.tobytes() for k in (splan.spatial.prefilter, splan.spatial.derivative,
+                                        splan.spatial.moment,
+                                        splan.spatial.moment_derivative)))
+    per_frame = []
+    for i, t in enumerate(int(f) for f in out_frames):
+        cols = np.flatnonzero(np.any([taps[k][i] != 0.0 for k in taps], axis=0))
+        src = splan.needed[cols]
+        one = SignalPlan(src, splan.iy0, splan.ix0, splan.weights, splan.combos,
+                         {k: np.ascontiguousarray(v[i:i + 1, cols]) for k, v in taps.items()},
+                         splan.spatial, splan.extra)
+        key = ("signals", base, tuple(int(k) - t for k in src),
+               tuple((k, v.tobytes()) for k, v in sorted(one.taps.items())))
+
+        def fn(src=src, one=one):
+            sums = np.stack([frames[int(k)]["sums"] for k in src], axis=1)
+            return {name: a[0] for name, a in backend.from_sums(sums, one).items()}
+
+        per_frame.append(volume.derive(t, tuple(int(k) for k in src), key, fn))
+    return {name: FrameStack(tuple(f[name] for f in per_frame), scale)
+            for name in per_frame[0]}
 
 
 # Where every sample's magnitude (but 0) lies within 2^-400 .. 2^400, the camera sums under
@@ -347,6 +399,29 @@ def estimate_memory(shape, settings: EstimatorSettings | None = None,
     per_row, fixed = _band_model(packed, W, len(ext), len(rows), n_signals, T, halo)
     band, inner = _equal_bands(max(16, int((BAND_BYTES - fixed) // per_row)), H, halo)
     return int(_BAND_MARGIN * (fixed + min(band, inner) * per_row) + _MAP_BYTES * H * W)
+
+
+def kept_frame_bytes(shape, settings: EstimatorSettings | None = None,
+                     models=("full",), method: str = "fast", itemsize: int = 8) -> int:
+    """Bytes a caller keeps per frame of a :class:`FramedVolume` of ``shape`` ``(T, Sy,
+    Sx, H, W)`` (frames of ``itemsize`` bytes a sample) where it keeps what the estimator
+    asks it to keep (``memo`` and ``derive``): the frame's camera sums (float64), its
+    centre view and, where a step would keep them (the numba backend), its base signals
+    (float64).  For planning memory.
+
+    Returns
+    -------
+    int
+    """
+    s = settings or EstimatorSettings()
+    T, Sy, Sx, H, W = shape
+    mdl = [get_model(m, 2 if Sy > 1 else 1, T == 1, s.motion) for m in models]
+    rows = covering_rows(mdl)
+    ext = zoom_rows(rows) if s.zoom_correction else rows
+    n_signals = 6 + len({ZOOM_ROW_SIGNALS[r][0] for r in ext[len(rows):]})
+    sums = 3 if Sy > 1 else 2                    # pp, dp and pd (2-D grids): SignalPlan
+    kept = n_signals if getattr(select_backend(method, shape), "frame_stacks", False) else 0
+    return H * W * (8 * (sums + kept) + itemsize)
 
 
 def temporal_reach(s: EstimatorSettings) -> int:
@@ -629,10 +704,19 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     step = max(1, _DISENTANGLE_PIXELS // cols.size)          # rows per call
     inv = 1.0 / plan.scale
     n_eff = _effective_samples(tplan.kernels[0], plan.spatial, len(plan.frames), plan.time)
+    # a recording's step in one band: each frame's signals kept for the steps that share
+    # the frame, where the caller keeps them (FramedVolume.derive) and the products of
+    # signals kept unscaled give the same bits (_KEPT_RANGE)
+    kept = (framed and vol.derive is not None and backend.frame_stacks and mask is None
+            and factor == plan.scale and band >= H - 2 * halo
+            and (amax == 0.0 or _KEPT_RANGE[0] <= amax <= _KEPT_RANGE[1])
+            and all(f["amin"] is None or f["amin"] >= _KEPT_RANGE[0] for f in frames))
     for r0 in range(halo, H - halo, band):
         r1 = min(r0 + band, H - halo)
         band_rows_ = slice(r0 - halo, r1 + halo)
-        if framed:
+        if kept:
+            signals = _kept_signals(vol, frames, splan, plan.frames, factor, backend)
+        elif framed:
             signals = backend.from_sums(_framed_sums(frames, splan.needed, factor,
                                                      band_rows_), splan)
         else:
@@ -677,6 +761,9 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
                     res["model_error"] = (np.where(valid[px], err[px], np.nan) * inv) * inv
                 for name, val in res.items():
                     out[m][name][r0 + a:r0 + b, halo:W - halo] = val.reshape(b - a, cols.size)
+        # the band's tensor and null spaces are done with: not held through the next
+        # band's signals or the pooled rates (the affine model's tensor at 512^2: 313 MB)
+        J = P = g = err = valid = res = None
     if pool:
         Sy, Sx = vol.shape[1:3]
         ref_view = frames[plan.k_ref]["view"] if framed else vol[plan.k_ref, Sy // 2, Sx // 2]

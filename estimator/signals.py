@@ -24,7 +24,7 @@ import numpy as np
 from .filters import FilterPair
 
 __all__ = ["SignalPlan", "signal_plan", "camera_sums", "temporal_taps", "spatial_jobs",
-           "separable", "ZOOM_SIGNALS", "FramedVolume"]
+           "separable", "ZOOM_SIGNALS", "FramedVolume", "FrameStack"]
 
 # The zoom-blur correction's base signals (estimator.models.ZOOM_ROW_SIGNALS): the
 # prefilter's first moment along the axis of a row's monomial, applied to the row's
@@ -84,12 +84,15 @@ class FramedVolume:
     :func:`camera_sums`, per frame), its largest magnitude (with the finiteness check)
     and the reference view.  A caller that keeps these per frame across the steps of a
     series (``gridflow estimate --every 1``: each frame is in up to 17 windows) lets a
-    step sum only its new frames over the views (the temporal and x/y filtering still
-    run over the window), and no step holds the window itself.  The maps are
-    those of the same frames given as one array, bit for bit (the camera weights' scale
-    is a power of two, applied to the kept sums, :func:`estimator.driver._unit_scale`;
-    where a float64 frame's magnitudes leave 2^-400 .. 2^400 the sums are taken again
-    under the scaled weights, :data:`estimator.driver._EXACT_RANGE`).
+    step sum only its new frames over the views, and no step holds the window itself;
+    one that also keeps ``derive``'s values (each frame's filtered signals) lets a step
+    filter only its new frames along t, x and y (on the numba backend, a step in one
+    band).  The maps are those of the same frames given as one array, bit for bit (the
+    camera weights' scale is a power of two, applied to the kept sums or, with kept
+    signals, to their products, :func:`estimator.driver._unit_scale`; where a float64
+    frame's magnitudes leave 2^-400 .. 2^400 the sums are taken again under the scaled
+    weights, :data:`estimator.driver._EXACT_RANGE`, and signals are kept only within
+    2^-200 .. 2^200, :data:`estimator.driver._KEPT_RANGE`).
 
     Attributes
     ----------
@@ -101,15 +104,50 @@ class FramedVolume:
         ``memo(t, key, fn)``: ``fn(frame)`` for frame ``t`` of the window (``frame`` of
         shape (Sy, Sx, H, W), of ``dtype``); a caller may return a value it kept for
         the same frame and ``key`` instead of calling ``fn`` again.
+    derive : callable, optional
+        ``derive(t, span, key, fn)``: ``fn()``, a value computed from frames ``span``
+        of the window (through ``memo``), such as frame ``t``'s filtered signals from
+        the camera sums of the frames its temporal taps reach; a caller may return a
+        value it kept for ``t`` and ``key`` while the frames of ``span`` are those it
+        was computed from.  With it the estimator keeps each frame's signals (not only
+        its sums) for the steps that share the frame, and filters only a step's new
+        frames; None (the default) filters the window's signals every step.
     """
 
     shape: tuple
     dtype: np.dtype
     memo: Callable
+    derive: Callable | None = None
 
     @property
     def ndim(self) -> int:
         return len(self.shape)
+
+
+@dataclass(frozen=True)
+class FrameStack:
+    """One base signal of a window given frame by frame, for the tensor's products: the
+    frames' own arrays, kept across the steps of a recording that share them, instead
+    of one (F, h, W) array assembled per step.
+
+    Attributes
+    ----------
+    frames : tuple of ndarray, each shape (h, W), float64, C-contiguous
+        The signal of each frame of the window, under the unscaled camera weights.
+    scale : float
+        The window's intensity scale (a power of two, :func:`estimator.driver.
+        _unit_scale`): the signal is ``scale`` times ``frames``.  The products take it as
+        ``scale^2`` in their frame weights, which gives the same bits as scaled signals
+        (a power of two commutes with every rounding while no value leaves the normal
+        range).
+    """
+
+    frames: tuple
+    scale: float
+
+    @property
+    def shape(self) -> tuple:
+        return (len(self.frames),) + tuple(self.frames[0].shape)
 
 
 def signal_plan(shape, frames: np.ndarray, cam_x: FilterPair, cam_y: FilterPair | None,

@@ -593,12 +593,14 @@ def estimate_step(plan: Plan, i: int, b: int, progress=None) -> tuple[dict, int]
     dtype = np.float32 if stored else np.float64
     if (src.values_kept and (a0, a1) == (0, H) and isinstance(plan.strategy, SinglePass)):
         # the window frame by frame: each frame's camera sums (and largest magnitude,
-        # reference view) computed once for the steps that share it, and no window
-        # assembled (the maps are the same bit for bit: FramedVolume)
+        # reference view) and filtered signals computed once for the steps that share
+        # it, and no window assembled (the maps are the same bit for bit: FramedVolume)
         from gridflow.estimator.signals import FramedVolume
 
-        window = FramedVolume((hi - lo,) + tuple(src.shape[1:]), np.dtype(dtype),
-                              lambda t, key, fn: src.frame_value(lo + t, key, fn, dtype))
+        window = FramedVolume(
+            (hi - lo,) + tuple(src.shape[1:]), np.dtype(dtype),
+            lambda t, key, fn: src.frame_value(lo + t, key, fn, dtype),
+            lambda t, span, key, fn: src.span_value(lo + t, [lo + u for u in span], key, fn))
     else:
         window = src.read(lo, hi, rows=(a0, a1), dtype=dtype)
     try:
@@ -686,27 +688,36 @@ def _local(plan: Plan, o: RunOptions) -> tuple[int, int, int]:
 
 
 def frame_cache(plan: Plan, tasks: int, budget: int) -> int:
-    """Frames a worker keeps the camera sums of (:meth:`gridflow.volume.Source.keep_values`;
-    counted here as decoded frames, ``Sy Sx`` samples a pixel, which on grids of 3 x 3
-    views or more take more than the 28 or 32 bytes a pixel of their sums and centre
-    view) for
+    """Frames a worker keeps the values of (:meth:`gridflow.volume.Source.keep_values`:
+    each frame's camera sums, centre view and filtered signals,
+    :func:`gridflow.estimator.kept_frame_bytes`) for
     ``tasks`` steps at once: a window and the frames the further steps reach beyond it,
-    so that steps one frame apart decode one frame each; none where steps are cut into
-    row bands (memory is short there), where steps do not share frames, or where the
-    frames would not fit in the ``budget`` bytes beside the steps' own
+    so that steps one frame apart decode and filter one frame each; none where steps are
+    cut into row bands (memory is short there), where steps do not share frames, or where
+    the frames would not fit in the ``budget`` bytes beside the steps' own
     (:func:`step_memory`)."""
+    from gridflow.estimator import kept_frame_bytes
+
     if len(plan.bands) != 1 or len(plan.frames) < 2:
         return 0
     frames = plan.window_frames
     every = max(b - a for a, b in zip(plan.frames, plan.frames[1:]))
     if every >= frames:
         return 0
-    T, Sy, Sx, H, W = plan.source.shape
     n = frames + (tasks - 1) * every
     need = tasks * step_memory(plan.source.shape, frames,
                                itemsize=_read_itemsize(plan.source, plan.strategy),
                                strategy=plan.strategy)
-    if need + n * Sy * Sx * H * W * plan.source.itemsize > budget:
+    settings = getattr(plan.strategy, "estimator_settings", None)
+    models = getattr(plan.strategy, "models", ("full",))
+    try:
+        per_frame = kept_frame_bytes(plan.source.shape, settings, models,
+                                     settings.method if settings is not None else "fast",
+                                     _read_itemsize(plan.source, plan.strategy))
+    except ValueError:
+        # models this input cannot take: refused by the estimator when the step runs
+        return 0
+    if need + n * per_frame > budget:
         return 0
     return n
 

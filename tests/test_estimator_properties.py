@@ -147,10 +147,12 @@ def test_a_float32_volume_gives_the_maps_of_its_float64_copy():
                 assert np.array_equal(a[q], b[q], equal_nan=True), (backend, motion, q)
 
 
-def _framed(volume, kept, lo=0):
+def _framed(volume, kept, lo=0, derived=None):
     """``volume`` as a FramedVolume whose frames' values are kept in ``kept`` under
     ``(lo + t, key)`` (as the pipeline keeps them across steps); returns it and the list
-    of the frames it computed a value for."""
+    of the frames it computed a value for.  With a list ``derived``, values derived from
+    several frames (a frame's signals) are kept too, under ``(lo + t, key, frames)``,
+    and ``derived`` lists the frames ``t`` they were computed for."""
     from gridflow.estimator.signals import FramedVolume
 
     computed = []
@@ -161,7 +163,15 @@ def _framed(volume, kept, lo=0):
             computed.append(lo + t)
             kept[k] = fn(volume[t])
         return kept[k]
-    return FramedVolume(volume.shape, volume.dtype, memo), computed
+
+    def derive(t, span, key, fn):
+        k = (lo + t, key, tuple(lo + u for u in span))
+        if k not in kept:
+            derived.append(lo + t)
+            kept[k] = fn()
+        return kept[k]
+    return (FramedVolume(volume.shape, volume.dtype, memo,
+                         None if derived is None else derive), computed)
 
 
 def test_a_volume_given_frame_by_frame_gives_the_maps_of_its_array():
@@ -172,18 +182,20 @@ def test_a_volume_given_frame_by_frame_gives_the_maps_of_its_array():
     here) is applied to the kept sums, and a float64 volume near the end of its range
     (|V| ~ 1e-306: its unscaled camera sums fall into float64's subnormals and lose bits
     the scaled ones keep; Z, its slopes and the disparity differed), whose sums are taken
-    under the scaled weights, each frame's once more."""
+    under the scaled weights, each frame's once more.  Each frame's signals kept as well
+    (FramedVolume.derive, under the unscaled weights, the scale in the products' frame
+    weights) give the same bits again."""
     for size, backend in ((80, "fft"), (160, "numba")):
         sv = make_sinusoid(height=size, width=size, frames=14, dtype=np.float32,
                            noise=0.01)
-        for motion, factor, band in (("translation", 1.0, None), ("affine", 1.0, None),
+        for motion, factor, band in (("translation", 1.0, None), ("affine", 1000.0, None),
                                      ("affine", 1000.0, 7), ("translation", None, None)):
             if factor is None:
                 vol = sv.volume.astype(np.float64) * 1e-306
             else:
                 vol = sv.volume * np.float32(factor)
             n = 5 if motion == "translation" else 13
-            kept = {}
+            kept, kept_signals = {}, {}
             for lo in (0, 1):
                 window = np.ascontiguousarray(vol[lo:lo + n])
                 kw = dict(models=("full", "bcc"), motion=motion, band_rows=band,
@@ -195,12 +207,28 @@ def test_a_volume_given_frame_by_frame_gives_the_maps_of_its_array():
                 # one (twice where the sums are taken again under the scaled weights)
                 once = list(range(n)) if lo == 0 else [lo + n - 1]
                 assert computed == (once if factor is not None else once + once), computed
+                # with each frame's signals kept too (FramedVolume.derive): on the numba
+                # backend, in one band and within _KEPT_RANGE, the first step filters
+                # the signals of every frame of its temporal window, once (those r
+                # frames from its ends: r = 2 for the 5-tap temporal filters, 1 for the
+                # 3-tap ones a window of 5 frames falls back to), the next only its new
+                # one
+                derived = []
+                framed, _ = _framed(window, kept_signals, lo, derived)
+                c = estimate_models(framed, sv.focal_length, sv.camera_spacing, **kw)
+                r = 1 if n == 5 else 2
+                frames = list(range(r, n - r)) if lo == 0 else [lo + n - 1 - r]
+                uses = backend == "numba" and band is None and factor is not None
+                assert derived == (frames if uses else []), (backend, motion, derived)
                 for m in a:
-                    assert a[m].settings["backend"] == b[m].settings["backend"] == backend
-                    assert a[m].settings == b[m].settings
+                    assert (a[m].settings["backend"] == b[m].settings["backend"]
+                            == c[m].settings["backend"] == backend)
+                    assert a[m].settings == b[m].settings == c[m].settings
                     for q in a[m].maps:
                         assert np.array_equal(a[m][q], b[m][q], equal_nan=True), (
                             backend, motion, band, m, q)
+                        assert np.array_equal(a[m][q], c[m][q], equal_nan=True), (
+                            "kept signals", backend, motion, band, m, q)
 
 
 def test_the_products_in_batches_are_the_products_one_by_one(monkeypatch):
@@ -241,6 +269,35 @@ def test_the_products_in_batches_are_the_products_one_by_one(monkeypatch):
         np.testing.assert_array_equal(idx, idx1)
         # the bits, signs of zeros included
         assert np.array_equal(merged.view(np.uint64), single.view(np.uint64)), motion
+
+
+def test_the_products_of_frames_kept_apart_are_those_of_the_stacked_frames():
+    """weighted_product_frames reads a signal's frames where they are kept (through their
+    addresses, frames_of): the same bits as weighted_product of the frames stacked, into
+    a padded out too; frames of another type, shape or layout, lists of another length,
+    and an out smaller than the frames are refused before the kernel runs."""
+    from gridflow.estimator._kernels import frames_of, weighted_product, weighted_product_frames
+
+    rng = np.random.default_rng(3)
+    a = [rng.standard_normal((37, 50)) for _ in range(5)]
+    b = [rng.standard_normal((37, 50)) for _ in range(5)]
+    coefs = rng.standard_normal((3, 5))
+    for shape in ((37, 50), (40, 64)):
+        want = weighted_product(coefs, np.stack(a), np.stack(b), shape)
+        got = weighted_product_frames(coefs, frames_of(a), frames_of(b), shape)
+        assert np.array_equal(want.view(np.uint64), got.view(np.uint64)), shape
+    for bad in (a[:4] + [a[4].astype(np.float32)], a[:4] + [a[4][:, :49]],
+                a[:4] + [np.asfortranarray(a[4])], a[:4] + [a[4][None]], []):
+        with pytest.raises(ValueError, match="frames_of: C-contiguous float64"):
+            frames_of(bad)
+    for fa, fb, shape, out in ((frames_of(a[:4]), frames_of(b), (37, 50), None),
+                               (frames_of(a), frames_of([p[:36] for p in b]), (37, 50), None),
+                               (frames_of(a), frames_of(b), (36, 50), None),
+                               (frames_of(a), frames_of(b), (37, 50), np.empty((2, 37, 50))),
+                               (frames_of(a), frames_of(b), (37, 50),
+                                np.empty((3, 37, 100))[:, :, ::2])):
+        with pytest.raises(ValueError, match="weighted_product_frames: two signals"):
+            weighted_product_frames(coefs, fa, fb, shape, out)
 
 
 def test_the_product_kernel_refuses_an_output_it_would_overrun():

@@ -966,6 +966,47 @@ def test_a_frames_kept_values_are_computed_once_and_again_after_a_rewrite(
     assert len(calls) == 11
 
 
+def test_a_value_of_several_frames_is_kept_until_one_of_them_is_rewritten(recording,
+                                                                        tmp_path):
+    """Source.span_value keeps a value computed from several frames (a frame's signals,
+    from the camera sums of the frames its temporal taps reach) under one frame, while
+    every frame of its span is as it was: a second call does not compute it again, a
+    rewrite of another frame of the span (not the frame it is kept under) does, and a
+    value of another span is another value; without keep_values nothing is kept; a
+    frame outside the recording is refused by number."""
+    import shutil
+
+    import zarr
+
+    from gridflow.recording import RecordingError
+    from gridflow.sources import open_source
+
+    rec = tmp_path / "rec.zarr"
+    shutil.copytree(recording, rec)
+    src = open_source(rec)
+    src.keep_values(4)
+    calls = []
+
+    def fn():
+        calls.append(1)
+        return len(calls)
+
+    assert src.span_value(3, (1, 2, 3, 4, 5), "signals", fn) == 1
+    assert src.span_value(3, (1, 2, 3, 4, 5), "signals", fn) == 1
+    assert src.span_value(3, (2, 3, 4), "signals", fn) == 2
+    assert len(calls) == 2
+    time.sleep(0.01)
+    g = zarr.open_group(str(rec), mode="r+")
+    g["volume"][5] = np.asarray(g["volume"][5]) + 1.0
+    assert src.span_value(3, (1, 2, 3, 4, 5), "signals", fn) == 3
+    assert src.span_value(3, (2, 3, 4), "signals", fn) == 2
+    with pytest.raises(RecordingError, match="frame 40 requested of 0..39"):
+        src.span_value(38, (36, 37, 38, 39, 40), "signals", fn)
+    plain = open_source(rec)
+    assert plain.span_value(3, (2, 3, 4), "signals", fn) == 4
+    assert plain.span_value(3, (2, 3, 4), "signals", fn) == 5
+
+
 @pytest.mark.parametrize("cache", [0, 6])
 def test_a_non_finite_frame_is_named_whether_frames_are_kept_or_not(recording, tmp_path,
                                                                     cache):

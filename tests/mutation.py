@@ -122,6 +122,19 @@ MUTANTS = [
                 "test_the_products_in_batches_are_the_products_one_by_one",),
            "the products batched by pair without keeping the summed planes' order "
            "(other bits)"),
+    Mutant("kept-signals-unscaled", "estimator/backends.py",
+           "coefs * (a.scale * b.scale), frames(a), frames(b), shape, out)",
+           "coefs, frames(a), frames(b), shape, out)",
+           (T + "test_estimator_properties.py::"
+                "test_a_volume_given_frame_by_frame_gives_the_maps_of_its_array",),
+           "a recording's kept signals multiplied without the window's intensity scale"),
+    Mutant("kept-span-unsigned", "base/recording.py",
+           "        sources = tuple(self._signature(u) for u in span)",
+           "        sources = ()",
+           (T + "test_series.py::"
+                "test_a_value_of_several_frames_is_kept_until_one_of_them_is_rewritten",),
+           "a frame's kept signals kept after another frame they were filtered from "
+           "changed on disk"),
     Mutant("signals-time-derivative", "estimator/signals.py",
            '        taps["d"] = along_t(time.derivative)', '        taps["d"] = along_t(time.prefilter)',
            (TRUTH,), "I_t filtered with the temporal prefilter"),

@@ -368,8 +368,19 @@ _MAP_BYTES = 600
 _BAND_MARGIN = 1.25
 
 
+def _rows_and_signals(shape, s: EstimatorSettings, models) -> tuple[tuple, tuple, int]:
+    """The data rows of ``models`` on a volume of ``shape``, with the zoom-blur
+    correction's rows where ``s`` asks for them, and the number of base signals."""
+    T, Sy = shape[:2]
+    rows = covering_rows([get_model(m, 2 if Sy > 1 else 1, T == 1, s.motion)
+                          for m in models])
+    ext = zoom_rows(rows) if s.zoom_correction else rows
+    return rows, ext, 6 + len({ZOOM_ROW_SIGNALS[r][0] for r in ext[len(rows):]})
+
+
 def estimate_memory(shape, settings: EstimatorSettings | None = None,
-                    models=("full",), method: str = "fast") -> int:
+                    models=("full",), method: str = "fast", *,
+                    kept_signals: bool = False) -> int:
     """Bytes :func:`estimate_models` holds beyond its volume for a volume of ``shape``
     ``(T, Sy, Sx, H, W)``: its bands (:func:`band_rows`'s model, at most
     :data:`BAND_BYTES` a band, with a margin) and its whole-image maps (an envelope of
@@ -383,6 +394,10 @@ def estimate_memory(shape, settings: EstimatorSettings | None = None,
     models : tuple of str
     method : str
         As ``estimate_models``'s.
+    kept_signals : bool
+        A :class:`FramedVolume` whose caller keeps each frame's signals
+        (:func:`kept_frame_bytes` counts them), on a backend that takes them: the
+        signals are not the estimate's own.
 
     Returns
     -------
@@ -390,10 +405,9 @@ def estimate_memory(shape, settings: EstimatorSettings | None = None,
     """
     s = settings or EstimatorSettings()
     T, Sy, Sx, H, W = shape
-    mdl = [get_model(m, 2 if Sy > 1 else 1, T == 1, s.motion) for m in models]
-    rows = covering_rows(mdl)
-    ext = zoom_rows(rows) if s.zoom_correction else rows
-    n_signals = 6 + len({ZOOM_ROW_SIGNALS[r][0] for r in ext[len(rows):]})
+    rows, ext, n_signals = _rows_and_signals(shape, s, models)
+    if kept_signals and getattr(select_backend(method, shape), "frame_stacks", False):
+        n_signals = 0
     halo = window_halo(s)
     packed = method == "fast"
     per_row, fixed = _band_model(packed, W, len(ext), len(rows), n_signals, T, halo)
@@ -413,12 +427,8 @@ def kept_frame_bytes(shape, settings: EstimatorSettings | None = None,
     -------
     int
     """
-    s = settings or EstimatorSettings()
     T, Sy, Sx, H, W = shape
-    mdl = [get_model(m, 2 if Sy > 1 else 1, T == 1, s.motion) for m in models]
-    rows = covering_rows(mdl)
-    ext = zoom_rows(rows) if s.zoom_correction else rows
-    n_signals = 6 + len({ZOOM_ROW_SIGNALS[r][0] for r in ext[len(rows):]})
+    n_signals = _rows_and_signals(shape, settings or EstimatorSettings(), models)[2]
     sums = 3 if Sy > 1 else 2                    # pp, dp and pd (2-D grids): SignalPlan
     kept = n_signals if getattr(select_backend(method, shape), "frame_stacks", False) else 0
     return H * W * (8 * (sums + kept) + itemsize)

@@ -398,14 +398,16 @@ def _steps(source, strategy, o: RunOptions, sink) -> tuple[tuple, tuple]:
 
 
 def step_memory(shape, window_frames: int, rows: int | None = None, halo: int = 0, *,
-                itemsize: int = 8, strategy=None) -> int:
+                itemsize: int = 8, strategy=None, framed: bool = False) -> int:
     """Bytes one task needs: the process, its window of ``window_frames`` frames of a
     source of ``shape`` ``(T, Sy, Sx, H, W)`` as read (``itemsize`` bytes a sample) and
     what the estimator holds beyond it (:func:`gridflow.estimator.estimate_memory`, for
     ``strategy``'s settings and models: default the full model and the default
     settings); with ``rows`` (fewer than the image's) those of a band of that many rows
     and ``halo`` rows either side, plus one decoded frame (a band is read frame by
-    frame from whole-frame chunks)."""
+    frame from whole-frame chunks).  ``framed``: a whole step of a worker that keeps its
+    frames' values (counted by :func:`_framed_need`), which decodes one frame at a time
+    and holds no window, nor signals of its own where the estimator keeps them."""
     from gridflow.estimator import estimate_memory
 
     T, Sy, Sx, H, W = shape
@@ -414,15 +416,40 @@ def step_memory(shape, window_frames: int, rows: int | None = None, halo: int = 
     settings = getattr(strategy, "estimator_settings", None)
     models = getattr(strategy, "models", ("full",))
     method = settings.method if settings is not None else "fast"
+    kept = framed and not banded
     try:
-        est = estimate_memory((window_frames, Sy, Sx, r, W), settings, models, method)
+        est = estimate_memory((window_frames, Sy, Sx, r, W), settings, models, method,
+                              kept_signals=kept)
     except ValueError:
         # models this input cannot take (a light field of one frame given --model full):
         # the estimator refuses them with its own message when the step runs; planned here
         # as the model every input takes
         est = estimate_memory((window_frames, Sy, Sx, r, W), None, ("bcc",), method)
-    window = window_frames * Sy * Sx * r * W * itemsize
-    return int(_PROCESS + window + est + (Sy * Sx * H * W * itemsize if banded else 0))
+    frame = Sy * Sx * H * W * itemsize
+    window = frame if kept else window_frames * Sy * Sx * r * W * itemsize
+    return int(_PROCESS + window + est + (frame if banded else 0))
+
+
+def _framed_need(shape, window_frames: int, every: int | None, tasks: int, *,
+                 itemsize: int, strategy) -> int | None:
+    """Bytes ``tasks`` whole steps at once need where their worker keeps each frame's
+    values (steps ``every`` frames apart share frames: :func:`frame_cache`): the steps
+    (:func:`step_memory`, ``framed``) and the frames kept for them; None where steps
+    do not share frames or the strategy reads whole windows."""
+    from gridflow.estimator import kept_frame_bytes
+
+    if every is None or every >= window_frames or not isinstance(strategy, SinglePass):
+        return None
+    settings = strategy.estimator_settings
+    try:
+        per_frame = kept_frame_bytes(shape, settings, strategy.models, settings.method,
+                                     itemsize)
+    except ValueError:
+        # models this input cannot take: refused by the estimator when the step runs
+        return None
+    steps = tasks * step_memory(shape, window_frames, itemsize=itemsize, strategy=strategy,
+                                framed=True)
+    return steps + (window_frames + (tasks - 1) * every) * per_frame
 
 
 def _budget(memory: float | None) -> int:
@@ -442,9 +469,11 @@ def _budget(memory: float | None) -> int:
 
 
 def _band_rows(shape, window_frames: int, halo, o: RunOptions, budget: int, *,
-               itemsize: int = 8, strategy=None) -> int:
-    """Rows per band: all (one band) where a step fits the budget or the strategy needs
-    whole images; else the widest bands that fit (``band_rows`` chooses them instead)."""
+               itemsize: int = 8, strategy=None, every: int | None = None) -> int:
+    """Rows per band: all (one band) where a step fits the budget (as read, or with its
+    frames' values kept, steps ``every`` frames apart: :func:`_framed_need`) or the
+    strategy needs whole images; else the widest bands that fit (``band_rows`` chooses
+    them instead)."""
     T, Sy, Sx, H, W = shape
     if halo is None:
         if o.band_rows is not None:
@@ -457,7 +486,9 @@ def _band_rows(shape, window_frames: int, halo, o: RunOptions, budget: int, *,
         return step_memory(shape, window_frames, rows, halo, itemsize=itemsize,
                            strategy=strategy)
 
-    if need() <= budget:
+    framed = _framed_need(shape, window_frames, every, 1, itemsize=itemsize,
+                          strategy=strategy)
+    if need() <= budget or (framed is not None and framed <= budget):
         return H
     if need(halo + 1) > budget and 3 * halo + 1 >= H:
         # the narrowest band and its halo span the whole image: bands cannot help (under
@@ -496,7 +527,8 @@ def plan_run(source, strategy, o: RunOptions, sink) -> Plan:
     halo = strategy.halo
     n = max(hi - lo for lo, hi in windows)
     rows = _band_rows(source.shape, n, halo, o, _budget(o.memory),
-                      itemsize=_read_itemsize(source, strategy), strategy=strategy)
+                      itemsize=_read_itemsize(source, strategy), strategy=strategy,
+                      every=_every(frames))
     H = source.shape[3]
     bands = tuple((r0, min(r0 + rows, H)) for r0 in range(0, H, rows))
     return Plan(source, strategy, frames, windows, bands, halo or 0, strategy.reach,
@@ -665,6 +697,21 @@ def run_step(job: dict, i: int, b: int) -> dict:
     return {"step": i, "band": b, "estimate_s": t1 - t0, "write_s": time.perf_counter() - t1}
 
 
+def _every(frames) -> int | None:
+    """The largest spacing of consecutive steps (None for one step)."""
+    return max((b - a for a, b in zip(frames, frames[1:])), default=None)
+
+
+def _framed(plan: Plan, tasks: int) -> int | None:
+    """:func:`_framed_need` of ``plan``'s whole steps, ``tasks`` at once (None where its
+    steps are cut into bands or do not share frames)."""
+    if len(plan.bands) != 1:
+        return None
+    return _framed_need(plan.source.shape, plan.window_frames, _every(plan.frames), tasks,
+                        itemsize=_read_itemsize(plan.source, plan.strategy),
+                        strategy=plan.strategy)
+
+
 def _local(plan: Plan, o: RunOptions) -> tuple[int, int, int]:
     """(tasks at once, numba threads each, budget bytes) on this machine."""
     cores = os.cpu_count() or 1
@@ -677,6 +724,13 @@ def _local(plan: Plan, o: RunOptions) -> tuple[int, int, int]:
     need = step_memory(plan.source.shape, frames, r1 - r0, plan.halo,
                        itemsize=_read_itemsize(plan.source, plan.strategy),
                        strategy=plan.strategy)
+    if _framed(plan, 1) is not None and _framed(plan, 1) <= budget:
+        # whole steps whose worker keeps its frames' values: as many at once as fit with
+        # the frames kept for them (frame_cache keeps them for that many)
+        k = 1
+        while k < n and _framed(plan, k + 1) <= budget:
+            k += 1
+        return k, max(1, cores // k), budget
     if need > budget:
         T, Sy, Sx, H, W = plan.source.shape
         raise UsageError(f"a band of {r1 - r0} rows needs about {need / 2**30:.2f} GiB ("
@@ -695,31 +749,11 @@ def frame_cache(plan: Plan, tasks: int, budget: int) -> int:
     so that steps one frame apart decode and filter one frame each; none where steps are
     cut into row bands (memory is short there), where steps do not share frames, or where
     the frames would not fit in the ``budget`` bytes beside the steps' own
-    (:func:`step_memory`)."""
-    from gridflow.estimator import kept_frame_bytes
-
-    if len(plan.bands) != 1 or len(plan.frames) < 2:
+    (:func:`_framed_need`)."""
+    need = _framed(plan, tasks)
+    if need is None or need > budget:
         return 0
-    frames = plan.window_frames
-    every = max(b - a for a, b in zip(plan.frames, plan.frames[1:]))
-    if every >= frames:
-        return 0
-    n = frames + (tasks - 1) * every
-    need = tasks * step_memory(plan.source.shape, frames,
-                               itemsize=_read_itemsize(plan.source, plan.strategy),
-                               strategy=plan.strategy)
-    settings = getattr(plan.strategy, "estimator_settings", None)
-    models = getattr(plan.strategy, "models", ("full",))
-    try:
-        per_frame = kept_frame_bytes(plan.source.shape, settings, models,
-                                     settings.method if settings is not None else "fast",
-                                     _read_itemsize(plan.source, plan.strategy))
-    except ValueError:
-        # models this input cannot take: refused by the estimator when the step runs
-        return 0
-    if need + n * per_frame > budget:
-        return 0
-    return n
+    return plan.window_frames + (tasks - 1) * _every(plan.frames)
 
 
 def _check_options(o: RunOptions) -> None:

@@ -135,6 +135,11 @@ MUTANTS = [
                 "test_a_value_of_several_frames_is_kept_until_one_of_them_is_rewritten",),
            "a frame's kept signals kept after another frame they were filtered from "
            "changed on disk"),
+    Mutant("planner-framed-window", "pipeline/run.py",
+           "    window = frame if kept else window_frames * Sy * Sx * r * W * itemsize",
+           "    window = window_frames * Sy * Sx * r * W * itemsize",
+           (T + "test_docs.py::test_the_readmes_planner_numbers_are_the_planners",),
+           "a step with its frames kept planned as if it read its window"),
     Mutant("signals-time-derivative", "estimator/signals.py",
            '        taps["d"] = along_t(time.derivative)', '        taps["d"] = along_t(time.prefilter)',
            (TRUTH,), "I_t filtered with the temporal prefilter"),

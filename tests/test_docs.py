@@ -483,17 +483,26 @@ def test_leaderboard_block_agrees_with_its_csv_and_its_suites():
 def test_the_readmes_planner_numbers_are_the_planners():
     """README's memory the planner counts for a step of 5 x 5 views of 512^2 px (a
     recording: float32, read as stored; the default window of each motion model) is what
-    pipeline.run.step_memory gives, to the two decimals printed."""
+    pipeline.run.step_memory gives, to the two decimals printed, and for one and two
+    steps one frame apart with their frames kept what pipeline.run._framed_need gives."""
     from gridflow.estimator import temporal_reach
-    from gridflow.pipeline.run import step_memory
+    from gridflow.pipeline.run import _framed_need, step_memory
     from gridflow.pipeline.strategies import SinglePass
 
     text = " ".join((ROOT / "README.md").read_text().split())
     m = re.search(r"([\d.]+) GiB for one step of 5 × 5 views of 512² px under translation, "
                   r"([\d.]+) GiB under the affine model", text)
     assert m, "the planner's sentence is gone from README.md"
-    for motion, stated in zip(("translation", "affine"), m.groups()):
+    kept = re.search(r"with the frames kept for them ([\d.]+) GiB for one such step and "
+                     r"([\d.]+) GiB for two under translation, ([\d.]+) and ([\d.]+) GiB "
+                     r"under the affine model", text)
+    assert kept, "the planner's sentence on steps with kept frames is gone from README.md"
+    for i, (motion, stated) in enumerate(zip(("translation", "affine"), m.groups())):
         s = SinglePass(("full",), {"motion": motion})
         frames = 2 * temporal_reach(s.estimator_settings) + 1
         need = step_memory((200, 5, 5, 512, 512), frames, itemsize=4, strategy=s)
         assert f"{need / 2**30:.2f}" == stated, (motion, need / 2**30, stated)
+        for tasks, said in zip((1, 2), kept.groups()[2 * i:2 * i + 2]):
+            need = _framed_need((200, 5, 5, 512, 512), frames, 1, tasks, itemsize=4,
+                                strategy=s)
+            assert f"{need / 2**30:.2f}" == said, (motion, tasks, need / 2**30, said)

@@ -322,6 +322,48 @@ def test_a_step_over_the_memory_budget_runs_in_row_bands(recording, tmp_path, ca
     assert "even a band" not in err and not tiny.exists()
 
 
+def test_a_budget_that_holds_a_step_with_its_frames_kept_runs_whole_steps(recording,
+                                                                         tmp_path,
+                                                                         monkeypatch):
+    """Steps one frame apart whose worker keeps each frame's values hold no window of
+    their own (FramedVolume): under a budget that holds one such step and its kept
+    frames, but not a step reading its window, the run makes whole steps one at a time
+    with the frames kept (not row bands, nor a refusal), and its maps are those of a run
+    with room to spare."""
+    from gridflow.pipeline import RunOptions
+    from gridflow.pipeline import run as run_mod
+    from gridflow.pipeline.run import _framed_need, _read_itemsize, choose_strategy, step_memory
+    from gridflow.sources import open_source
+
+    rec = open_source(recording)
+    settings = {"sigma": 2.0, "window": 9, "motion": "affine"}
+    strategy, _ = choose_strategy(rec, RunOptions(settings=settings))
+    frames = 2 * strategy.reach + 1
+    itemsize = _read_itemsize(rec, strategy)
+    window = step_memory(rec.shape, frames, itemsize=itemsize, strategy=strategy)
+    one = _framed_need(rec.shape, frames, 1, 1, itemsize=itemsize, strategy=strategy)
+    assert one < window
+    budget = (one + window) / 2 / 2**30
+    planned = []
+    real = run_mod.frame_cache
+
+    def spy(plan, tasks, budget):
+        planned.append((len(plan.bands), tasks, real(plan, tasks, budget)))
+        return planned[-1][2]
+
+    monkeypatch.setattr(run_mod, "frame_cache", spy)
+    span = dict(every=1, first=12, last=15)
+    out, spare = tmp_path / "tight.zarr", tmp_path / "spare.zarr"
+    report = run_series(recording, out, settings=settings, memory=budget, **span)
+    # one band, one step at once, the frames of a window kept (before, this budget, which
+    # holds no step reading its window, refused the run: the pooled rates reach over the
+    # whole image, so bands could not help)
+    assert planned == [(1, 1, frames)], planned
+    assert any("1 step(s) at once" in line for line in report.lines), report.lines
+    run_series(recording, spare, settings=settings, **span)
+    assert same_arrays(store_arrays(out), store_arrays(spare))
+
+
 @pytest.mark.slow
 def test_kill_9_mid_way_then_rerun_gives_the_same_store(recording, tmp_path):
     """SIGKILL (nothing can catch it) part-way through a series, then the same command:

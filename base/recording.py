@@ -227,17 +227,34 @@ class _ZarrReader:
                               lambda: self._value_capacity, t, key, compute)
 
     def span_value(self, t: int, span: tuple, key, fn):
-        """``fn()`` (a value computed from frames ``span``), kept with frame ``t``'s
-        values while the chunk files of every frame of ``span`` are those it was
-        computed from (their signatures are part of its key); waited for, not computed
-        twice, as :meth:`frame_value`."""
+        """``fn()`` (a value computed from frames ``span``, which reads them through
+        :meth:`frame_value`), kept with frame ``t``'s values while the chunk files of
+        every frame of ``span`` are those it was computed from (their signatures, taken
+        before ``fn`` runs, are part of its key; a value during whose computation one of
+        them changed is not kept, and a value of the same ``key`` and ``span`` from
+        earlier files is dropped); waited for, not computed twice, as
+        :meth:`frame_value`."""
         for u in span:
             if not 0 <= u < self.volume.shape[0]:
                 raise RecordingError(f"{self.path}/volume: frame {u} requested of "
                                      f"0..{self.volume.shape[0] - 1}")
         sources = tuple(self._signature(u) for u in span)
-        return self._memoised(self._values, self._pending_values,
-                              lambda: self._value_capacity, t, (key, span, sources), fn)
+        full = (key, span, sources)
+        with self._lock:
+            hit = self._values.get(t)
+            if hit is not None:
+                for old in [k for k in hit[1] if isinstance(k, tuple) and len(k) == 3
+                            and k[:2] == (key, span) and k != full]:
+                    del hit[1][old]
+        value = self._memoised(self._values, self._pending_values,
+                               lambda: self._value_capacity, t, full, fn)
+        if tuple(self._signature(u) for u in span) != sources:
+            # a frame of the span was rewritten while the value was computed from it
+            with self._lock:
+                hit = self._values.get(t)
+                if hit is not None:
+                    hit[1].pop(full, None)
+        return value
 
     def _memoised(self, kept: dict, pending: dict, capacity, t: int, key, compute):
         """``compute()`` for frame ``t`` under ``key``, from ``kept`` (frame ->

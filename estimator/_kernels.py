@@ -235,7 +235,7 @@ def frames_of(arrays) -> Frames:
     arrays = tuple(arrays)
     hw = arrays[0].shape if arrays else None
     if not arrays or not all(p.ndim == 2 and p.shape == hw and p.dtype == np.float64
-                             and p.flags.c_contiguous for p in arrays):
+                             and p.flags.c_contiguous and p.flags.aligned for p in arrays):
         raise ValueError(f"frames_of: C-contiguous float64 frames of one shape (h, W) "
                          f"each, got {[(p.dtype.str, p.shape) for p in arrays]}")
     addresses = np.array([p.__array_interface__["data"][0] for p in arrays], dtype=np.intp)
@@ -247,6 +247,16 @@ def weighted_product_frames(coefs, a: Frames, b: Frames, shape, out=None):
     with the same result bit for bit as of the frames stacked into (F, h, W) arrays.
     Taking the frames where they are kept spares a step their copy into a window of its
     own (and its memory: 2 MB a frame and signal at 512^2).
+
+    Parameters
+    ----------
+    coefs : ndarray, shape (K, F)
+        One row of frame weights per product.
+    a, b : Frames
+        The two signals' F frames, each (h, W).
+    shape : (int, int)
+        Size of each zero-padded result, at least (h, W).
+    out : ndarray, shape (K,) + ``shape``, float64, C-contiguous, optional
 
     Returns
     -------

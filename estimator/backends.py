@@ -44,8 +44,8 @@ from .models import Model
 from .nullspace import NullSpace, null_space
 from .tensor import DenseTensor, PackedTensor, structure_tensor, structure_tensor_reference
 
-__all__ = ["Backend", "TensorPlan", "select_backend", "BACKENDS", "NUMBA_MIN_PIXELS",
-           "thread_count"]
+__all__ = ["Backend", "TensorPlan", "select_backend", "backend_class", "BACKENDS",
+           "NUMBA_MIN_PIXELS", "thread_count"]
 
 # The "fast" method runs on numba from this many image pixels on (see the module
 # docstring and bench/README.md).
@@ -277,6 +277,17 @@ class NumbaBackend(Backend):
 BACKENDS = {b.name: b for b in (ReferenceBackend, GroupedBackend, FFTBackend, NumbaBackend)}
 
 
+def backend_class(method: str, shape) -> type:
+    """The class of :func:`select_backend`'s backend, without making one (the numba
+    backend's loads numba and its kernels): for planning."""
+    if method == "fast":
+        large = len(shape) == 5 and shape[-1] * shape[-2] >= NUMBA_MIN_PIXELS
+        return NumbaBackend if large else FFTBackend
+    if method in ("grouped", "reference"):
+        return BACKENDS[method]
+    raise ValueError(f"method must be one of 'fast', 'grouped', 'reference', got {method!r}")
+
+
 def select_backend(method: str, shape) -> Backend:
     """The backend that runs ``method`` on a volume of ``shape`` (T, Sy, Sx, H, W).
 
@@ -286,9 +297,4 @@ def select_backend(method: str, shape) -> Backend:
         :data:`estimator.settings.METHODS`.
     shape : tuple of int
     """
-    if method == "fast":
-        large = len(shape) == 5 and shape[-1] * shape[-2] >= NUMBA_MIN_PIXELS
-        return NumbaBackend() if large else FFTBackend()
-    if method in ("grouped", "reference"):
-        return BACKENDS[method]()
-    raise ValueError(f"method must be one of 'fast', 'grouped', 'reference', got {method!r}")
+    return backend_class(method, shape)()

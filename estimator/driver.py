@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .backends import TensorPlan, select_backend
+from .backends import TensorPlan, backend_class, select_backend
 from .disentangle import disentangle, solve_affine
 from .filters import FilterPair, get_filter_pair
 from .masks import MIN_OBJECT_WEIGHT, object_window
@@ -32,7 +32,7 @@ from .tensor import gaussian_moment_kernels, scaled, zoom_corrected, zoom_terms
 
 __all__ = ["Estimate", "EstimatorSettings", "InputError", "estimate", "estimate_models",
            "window_halo", "band_halo", "temporal_reach", "band_rows", "BAND_BYTES",
-           "estimate_memory"]
+           "estimate_memory", "kept_frame_bytes"]
 
 # Pixels per call of the disentangling (whole rows): 8192 doubles are 64 KB, below
 # glibc's threshold for giving each array fresh pages of its own.
@@ -157,6 +157,13 @@ def _framed_frames(volume: FramedVolume, splan: SignalPlan, backend) -> list[dic
     (:data:`_EXACT_RANGE`), shape (C, H, W), float64, as ``backend.camera_sums`` gives
     them for the frame alone) and ``view`` (the centre view, (H, W)).  One per frame of
     the volume."""
+    key, per_frame = _frame_values(volume, splan, backend)
+    return [volume.memo(k, key, per_frame(k)) for k in range(volume.shape[0])]
+
+
+def _frame_values(volume: FramedVolume, splan: SignalPlan, backend):
+    """``(key, per_frame)``: the memo key of :func:`_framed_frames`' values and
+    ``per_frame(k)``, the function of frame ``k`` that makes them."""
     one = SignalPlan(np.zeros(1, dtype=np.int64), splan.iy0, splan.ix0, splan.weights,
                      splan.combos, splan.taps, splan.spatial, splan.extra)
     Sy, Sx = volume.shape[1:3]
@@ -183,7 +190,7 @@ def _framed_frames(volume: FramedVolume, splan: SignalPlan, backend) -> list[dic
                     "sums": backend.camera_sums(frame[None], one, slice(None))[:, 0],
                     "view": frame[Sy // 2, Sx // 2].copy()}
         return fn
-    return [volume.memo(k, key, per_frame(k)) for k in range(volume.shape[0])]
+    return key, per_frame
 
 
 def _frame_key(splan: SignalPlan, backend) -> tuple:
@@ -199,13 +206,14 @@ def _frame_key(splan: SignalPlan, backend) -> tuple:
 _KEPT_RANGE = (2.0 ** -200, 2.0 ** 200)
 
 
-def _kept_signals(volume: FramedVolume, frames: list[dict], splan: SignalPlan,
-                  out_frames: np.ndarray, scale: float, backend) -> dict[str, FrameStack]:
+def _kept_signals(volume: FramedVolume, splan: SignalPlan, out_frames: np.ndarray,
+                  scale: float, backend) -> dict[str, FrameStack]:
     """The signals of a :class:`FramedVolume`'s window, frame by frame: for each frame
     of the temporal window (``out_frames``, window indices), its base signals from the
-    unscaled camera sums of the frames its temporal taps reach (``frames`` from
-    :func:`_framed_frames`), through ``volume.derive`` so that a caller keeps them for
-    the next steps, which then filter only their new frames.  The signals are those of
+    camera sums of the frames its temporal taps reach under the unscaled weights
+    (``splan``, :func:`_framed_frames`' values, read through ``volume.memo`` when they
+    are filtered), through ``volume.derive`` so that a caller keeps them for the next
+    steps, which then filter only their new frames.  The signals are those of
     ``backend.from_sums`` on the window's sums as one array (each frame's temporal taps
     add the same terms in the same order, and the x/y filtering is per frame), up to
     the scale, which the products take (:class:`FrameStack`).
@@ -216,7 +224,8 @@ def _kept_signals(volume: FramedVolume, frames: list[dict], splan: SignalPlan,
         Each of F frames of shape (H, W).
     """
     taps = splan.taps
-    base = (_frame_key(splan, backend), str(np.dtype(volume.dtype)), splan.extra,
+    frame_key, per_frame_sums = _frame_values(volume, splan, backend)
+    base = (frame_key, str(np.dtype(volume.dtype)), splan.extra,
             tuple(k.tobytes() for k in (splan.spatial.prefilter, splan.spatial.derivative,
                                         splan.spatial.moment,
                                         splan.spatial.moment_derivative)))
@@ -231,7 +240,10 @@ def _kept_signals(volume: FramedVolume, frames: list[dict], splan: SignalPlan,
                tuple((k, v.tobytes()) for k, v in sorted(one.taps.items())))
 
         def fn(src=src, one=one):
-            sums = np.stack([frames[int(k)]["sums"] for k in src], axis=1)
+            # the sums as kept now (a frame rewritten since the step read it is read
+            # again: derive keeps the signals under the frames' state before this)
+            sums = np.stack([volume.memo(int(k), frame_key, per_frame_sums(int(k)))["sums"]
+                             for k in src], axis=1)
             return {name: a[0] for name, a in backend.from_sums(sums, one).items()}
 
         per_frame.append(volume.derive(t, tuple(int(k) for k in src), key, fn))
@@ -396,8 +408,8 @@ def estimate_memory(shape, settings: EstimatorSettings | None = None,
         As ``estimate_models``'s.
     kept_signals : bool
         A :class:`FramedVolume` whose caller keeps each frame's signals
-        (:func:`kept_frame_bytes` counts them), on a backend that takes them: the
-        signals are not the estimate's own.
+        (:func:`kept_frame_bytes` counts them; no mask): where the estimate keeps them
+        (:func:`_keeps_signals`) they are not its own.
 
     Returns
     -------
@@ -406,7 +418,7 @@ def estimate_memory(shape, settings: EstimatorSettings | None = None,
     s = settings or EstimatorSettings()
     T, Sy, Sx, H, W = shape
     rows, ext, n_signals = _rows_and_signals(shape, s, models)
-    if kept_signals and getattr(select_backend(method, shape), "frame_stacks", False):
+    if kept_signals and _keeps_signals(shape, s, models, method):
         n_signals = 0
     halo = window_halo(s)
     packed = method == "fast"
@@ -415,22 +427,54 @@ def estimate_memory(shape, settings: EstimatorSettings | None = None,
     return int(_BAND_MARGIN * (fixed + min(band, inner) * per_row) + _MAP_BYTES * H * W)
 
 
+def _keeps_signals(shape, s: EstimatorSettings, models, method: str,
+                   masked: bool = False) -> bool:
+    """Whether :func:`estimate_models` keeps the signals of a :class:`FramedVolume` of
+    ``shape`` (a whole window) frame by frame (``derive``): on a backend that takes them,
+    with no mask, the window in one band (as :func:`estimate_models` cuts it; the
+    magnitudes' range, :data:`_KEPT_RANGE`, is the data's and not known here)."""
+    if masked or not getattr(backend_class(method, shape), "frame_stacks", False):
+        return False
+    T, Sy, Sx, H, W = shape
+    rows, ext, n_signals = _rows_and_signals(shape, s, models)
+    halo = window_halo(s)
+    out_frames = max(1, T - 2 * get_filter_pair(s.filters).radius)
+    most = band_rows(backend_class(method, shape), W, len(ext), len(rows), n_signals,
+                     out_frames, halo, BAND_BYTES)
+    band, inner = _equal_bands(most, H, halo)
+    return band >= inner
+
+
 def kept_frame_bytes(shape, settings: EstimatorSettings | None = None,
-                     models=("full",), method: str = "fast", itemsize: int = 8) -> int:
-    """Bytes a caller keeps per frame of a :class:`FramedVolume` of ``shape`` ``(T, Sy,
-    Sx, H, W)`` (frames of ``itemsize`` bytes a sample) where it keeps what the estimator
-    asks it to keep (``memo`` and ``derive``): the frame's camera sums (float64), its
-    centre view and, where a step would keep them (the numba backend), its base signals
-    (float64).  For planning memory.
+                     models=("full",), method: str = "fast", itemsize: int = 8, *,
+                     masked: bool = False) -> int:
+    """Bytes a caller keeps per frame of a :class:`FramedVolume` where it keeps what the
+    estimator asks it to keep (``memo`` and ``derive``): the frame's camera sums
+    (float64), its centre view and, where the estimate keeps them
+    (:func:`_keeps_signals`), its base signals (float64).  For planning memory.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        ``(T, Sy, Sx, H, W)`` of a step's window.
+    settings : EstimatorSettings, optional
+    models : tuple of str
+    method : str
+        As ``estimate_models``'s.
+    itemsize : int
+        Bytes a sample of the frames as read (the centre view is kept as read).
+    masked : bool
+        The estimate has a mask (its signals are then not kept).
 
     Returns
     -------
     int
     """
+    s = settings or EstimatorSettings()
     T, Sy, Sx, H, W = shape
-    n_signals = _rows_and_signals(shape, settings or EstimatorSettings(), models)[2]
+    n_signals = _rows_and_signals(shape, s, models)[2]
     sums = 3 if Sy > 1 else 2                    # pp, dp and pd (2-D grids): SignalPlan
-    kept = n_signals if getattr(select_backend(method, shape), "frame_stacks", False) else 0
+    kept = n_signals if _keeps_signals(shape, s, models, method, masked) else 0
     return H * W * (8 * (sums + kept) + itemsize)
 
 
@@ -663,7 +707,8 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
     if framed:
         # a volume given frame by frame: each frame's sums (under the unscaled weights),
         # largest magnitude and centre view, read once; the scale from the magnitudes
-        frames = _framed_frames(vol, plan.signal_plan(extra, scale=1.0), backend)
+        unit = plan.signal_plan(extra, scale=1.0)
+        frames = _framed_frames(vol, unit, backend)
         amax = max(f["amax"] for f in frames)
         plan = replace(plan, scale=_unit_scale(amax))
         lo, hi = _EXACT_RANGE
@@ -725,7 +770,7 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         r1 = min(r0 + band, H - halo)
         band_rows_ = slice(r0 - halo, r1 + halo)
         if kept:
-            signals = _kept_signals(vol, frames, splan, plan.frames, factor, backend)
+            signals = _kept_signals(vol, unit, plan.frames, factor, backend)
         elif framed:
             signals = backend.from_sums(_framed_sums(frames, splan.needed, factor,
                                                      band_rows_), splan)
@@ -779,8 +824,8 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         ref_view = frames[plan.k_ref]["view"] if framed else vol[plan.k_ref, Sy // 2, Sx // 2]
         textured = textured_windows(ref_view, s.window // 2,
                                     used_samples)
-    for m, kept in pool.items():
-        out[m].update(_pooled(kept, interior, textured, sigma_pool, plan, s.sigma,
+    for m, inputs in pool.items():
+        out[m].update(_pooled(inputs, interior, textured, sigma_pool, plan, s.sigma,
                               backend.solve_affine))
         # a pixel that kept its own rates is the per-pixel solution: its growth_err
         alone = out[m]["pooled"] == 0.0

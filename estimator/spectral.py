@@ -121,7 +121,7 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
     Jp = np.empty((len(sums), out_rows, c1 - c0))
     # where each smoothed product goes: (plane, multiplicity); a plane of one term is
     # written directly, a plane of several is summed in the spectral domain (acc) and
-    # transformed back once at the end
+    # transformed back once, after its last term
     goes = {}
     for key, e in sums.items():
         for t in set(key):

@@ -419,7 +419,7 @@ def step_memory(shape, window_frames: int, rows: int | None = None, halo: int = 
     kept = framed and not banded
     try:
         est = estimate_memory((window_frames, Sy, Sx, r, W), settings, models, method,
-                              kept_signals=kept)
+                              kept_signals=kept and getattr(strategy, "mask", None) is None)
     except ValueError:
         # models this input cannot take (a light field of one frame given --model full):
         # the estimator refuses them with its own message when the step runs; planned here
@@ -442,8 +442,9 @@ def _framed_need(shape, window_frames: int, every: int | None, tasks: int, *,
         return None
     settings = strategy.estimator_settings
     try:
-        per_frame = kept_frame_bytes(shape, settings, strategy.models, settings.method,
-                                     itemsize)
+        per_frame = kept_frame_bytes(
+            (window_frames,) + tuple(shape[1:]), settings, strategy.models, settings.method,
+            itemsize, masked=strategy.mask is not None)
     except ValueError:
         # models this input cannot take: refused by the estimator when the step runs
         return None
@@ -486,8 +487,10 @@ def _band_rows(shape, window_frames: int, halo, o: RunOptions, budget: int, *,
         return step_memory(shape, window_frames, rows, halo, itemsize=itemsize,
                            strategy=strategy)
 
-    framed = _framed_need(shape, window_frames, every, 1, itemsize=itemsize,
-                          strategy=strategy)
+    # whole steps with their frames kept, where this machine's budget plans them (a
+    # cluster's workers keep frames only within their own memory limits: frame_cache)
+    framed = (_framed_need(shape, window_frames, every, 1, itemsize=itemsize,
+                           strategy=strategy) if o.connect is None else None)
     if need() <= budget or (framed is not None and framed <= budget):
         return H
     if need(halo + 1) > budget and 3 * halo + 1 >= H:

@@ -1013,9 +1013,11 @@ def test_a_value_of_several_frames_is_kept_until_one_of_them_is_rewritten(record
     """Source.span_value keeps a value computed from several frames (a frame's signals,
     from the camera sums of the frames its temporal taps reach) under one frame, while
     every frame of its span is as it was: a second call does not compute it again, a
-    rewrite of another frame of the span (not the frame it is kept under) does, and a
-    value of another span is another value; without keep_values nothing is kept; a
-    frame outside the recording is refused by number."""
+    rewrite of another frame of the span (not the frame it is kept under) does (and the
+    value from the former files is dropped), a value during whose computation a frame of
+    its span was rewritten is not kept, and a value of another span is another value;
+    without keep_values nothing is kept; a frame outside the recording is refused by
+    number."""
     import shutil
 
     import zarr
@@ -1042,11 +1044,66 @@ def test_a_value_of_several_frames_is_kept_until_one_of_them_is_rewritten(record
     g["volume"][5] = np.asarray(g["volume"][5]) + 1.0
     assert src.span_value(3, (1, 2, 3, 4, 5), "signals", fn) == 3
     assert src.span_value(3, (2, 3, 4), "signals", fn) == 2
+    # the value from the files before the rewrite is dropped, not kept beside the new one
+    assert sum(isinstance(k, tuple) and len(k) == 3 and k[:2] == ("signals", (1, 2, 3, 4, 5))
+               for k in src._reader._values[3][1]) == 1
+
+    def rewriting():
+        # a frame of the span rewritten while the value is computed: not kept
+        time.sleep(0.01)
+        g["volume"][1] = np.asarray(g["volume"][1]) + 1.0
+        return fn()
+
+    assert src.span_value(2, (0, 1, 2), "signals", rewriting) == 4
+    hit = src._reader._values.get(2)
+    assert hit is None or not any(isinstance(k, tuple) and len(k) == 3
+                                  and k[:2] == ("signals", (0, 1, 2)) for k in hit[1])
+    assert src.span_value(2, (0, 1, 2), "signals", fn) == 5
+    assert src.span_value(2, (0, 1, 2), "signals", fn) == 5
     with pytest.raises(RecordingError, match="frame 40 requested of 0..39"):
         src.span_value(38, (36, 37, 38, 39, 40), "signals", fn)
     plain = open_source(rec)
-    assert plain.span_value(3, (2, 3, 4), "signals", fn) == 4
-    assert plain.span_value(3, (2, 3, 4), "signals", fn) == 5
+    assert plain.span_value(3, (2, 3, 4), "signals", fn) == 6
+    assert plain.span_value(3, (2, 3, 4), "signals", fn) == 7
+
+
+def test_kept_signals_give_the_store_of_windows_read_whole(tmp_path, monkeypatch):
+    """At 128^2 px (the numba backend) a worker keeps each frame's filtered signals
+    for the steps that share it (estimator.driver._kept_signals, through
+    Source.span_value), one step at a time or two: each frame of the steps' temporal
+    windows is filtered once, and the store equals, array for array, one made from
+    whole windows with nothing kept."""
+    from gridflow.pipeline import run as run_mod
+    from gridflow.recording import _ZarrReader
+
+    rec = record(tmp_path / "rec.zarr", frames=24, height=128, width=128)
+    settings = {"sigma": 2.0, "window": 9}
+    derived = []
+    real = _ZarrReader.span_value
+
+    def counting(self, t, span, key, fn):
+        def counted():
+            derived.append(t)
+            return fn()
+        return real(self, t, span, key, counted)
+
+    monkeypatch.setattr(_ZarrReader, "span_value", counting)
+    stores = {}
+    for workers in (1, 2):
+        derived.clear()
+        stores[workers] = tmp_path / f"kept{workers}.zarr"
+        run_series(rec, stores[workers], every=1, settings=settings, first=9, last=12,
+                   workers=workers)
+        # 4 steps of 13-frame temporal windows (affine, frames 3..18): 16 frames
+        assert sorted(set(derived)) == list(range(3, 19)), derived
+        assert len(derived) == 16 if workers == 1 else len(derived) <= 16 + 13, derived
+    monkeypatch.setattr(run_mod, "frame_cache", lambda *a, **k: 0)
+    derived.clear()
+    plain = tmp_path / "plain.zarr"
+    run_series(rec, plain, every=1, settings=settings, first=9, last=12, workers=1)
+    assert not derived
+    assert same_arrays(store_arrays(stores[1]), store_arrays(plain))
+    assert same_arrays(store_arrays(stores[2]), store_arrays(plain))
 
 
 @pytest.mark.parametrize("cache", [0, 6])

@@ -119,38 +119,10 @@ def spatial_filter(a, kx, ky):
 _PRODUCT_BLOCK = 16
 
 
-@njit(parallel=True, cache=True)
-def _product_kernel(coefs, a, b, out):
-    """``out[k, y, x] = sum_f coefs[k, f] a[f, y, x] b[f, y, x]`` on the top-left (h, W)
-    of each ``out[k]``, zeros elsewhere (the FFT's padding).  Each output is summed over
-    the frames in order, ``out += (c a) b``, whatever ``K``: the same bits as one
-    product at a time, with ``a`` and ``b`` read once for all ``K``.  A task makes a
-    block of 16 rows, frame after frame, so that the block's outputs stay in cache
-    while the frames stream past (measured at 512^2, 13 frames, K = 3, one thread:
-    4.8-5.3 ms a call against 6.0-7.1 ms with a row a task)."""
-    K = coefs.shape[0]
-    F, h, W = a.shape
-    R = out.shape[1]
-    for blk in prange((R + _PRODUCT_BLOCK - 1) // _PRODUCT_BLOCK):
-        y0 = blk * _PRODUCT_BLOCK
-        y1 = min(y0 + _PRODUCT_BLOCK, R)
-        for y in range(y0, y1):
-            for k in range(K):
-                for x in range(out.shape[2]):
-                    out[k, y, x] = 0.0
-        for f in range(F):
-            for y in range(y0, min(y1, h)):
-                for k in range(K):
-                    c = coefs[k, f]
-                    if c != 0.0:
-                        for x in range(W):
-                            out[k, y, x] += c * a[f, y, x] * b[f, y, x]
-
-
 def weighted_product(coefs, a, b, shape, out=None):
     """The frame-weighted products of :func:`estimator.spectral.structure_tensor_fft`
-    (its ``product``), in parallel over the rows: several weightings of the same two
-    signals in one pass over them.
+    (its ``product``), in parallel over blocks of rows: several weightings of the same
+    two signals in one pass over them (:func:`weighted_product_frames` of their frames).
 
     Parameters
     ----------
@@ -177,8 +149,7 @@ def weighted_product(coefs, a, b, shape, out=None):
             or any(n < m for n, m in zip(want[1:], a.shape[1:]))):
         raise ValueError(f"weighted_product: out must be C-contiguous of shape {want} "
                          f"(got {out.shape}) and hold a of shape {a.shape}")
-    _product_kernel(coefs, a, b, out)
-    return out
+    return weighted_product_frames(coefs, frames_of(a), frames_of(b), shape, out)
 
 
 @intrinsic
@@ -193,10 +164,15 @@ def _float64_pointer(typingctx, address):
 
 @njit(parallel=True, cache=True)
 def _frames_product_kernel(coefs, a, b, h, W, out):
-    """:func:`_product_kernel` over signals given frame by frame: ``a[f]``, ``b[f]`` the
-    addresses of C-contiguous float64 (h, W) arrays (:class:`Frames`), each output
-    summed over the frames in the same order, so the same bits; in blocks of rows as
-    :func:`_product_kernel`."""
+    """``out[k, y, x] = sum_f coefs[k, f] A_f[y, x] B_f[y, x]`` on the top-left (h, W) of
+    each ``out[k]``, zeros elsewhere (the FFT's padding), with ``A_f``, ``B_f`` the
+    C-contiguous float64 (h, W) arrays at the addresses ``a[f]``, ``b[f]``
+    (:class:`Frames`).  Each output is summed over the frames in order, ``out += (c a)
+    b``, whatever ``K``: the same bits as one product at a time, with both signals read
+    once for all ``K``.  A task makes a block of 16 rows, frame after frame, so that the
+    block's outputs stay in cache while the frames stream past (measured at 512^2, 13
+    frames, K = 3, one thread: 4.8-5.3 ms a call against 6.0-7.1 ms with a row a
+    task)."""
     K = coefs.shape[0]
     F = a.size
     R = out.shape[1]

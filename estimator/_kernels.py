@@ -115,7 +115,7 @@ def spatial_filter(a, kx, ky):
     return out
 
 
-# output rows a task of the product kernels makes
+# output rows a task of the product kernel makes
 _PRODUCT_BLOCK = 16
 
 
@@ -144,6 +144,9 @@ def weighted_product(coefs, a, b, shape, out=None):
     want = (coefs.shape[0],) + tuple(shape)
     if out is None:
         out = np.empty(want)
+    if a.ndim != 3 or a.shape != b.shape or a.shape[0] != coefs.shape[1]:
+        raise ValueError(f"weighted_product: a and b of one shape (F, h, W), F = "
+                         f"{coefs.shape[1]} the frames of coefs; got {a.shape} and {b.shape}")
     # the kernel checks no bounds: a smaller or strided out would be written past
     if (out.shape != want or not out.flags.c_contiguous
             or any(n < m for n, m in zip(want[1:], a.shape[1:]))):

@@ -430,14 +430,17 @@ def estimate_memory(shape, settings: EstimatorSettings | None = None,
 def _keeps_signals(shape, s: EstimatorSettings, models, method: str,
                    masked: bool = False) -> bool:
     """Whether :func:`estimate_models` keeps the signals of a :class:`FramedVolume` of
-    ``shape`` (a whole window) frame by frame (``derive``): on a backend that takes them,
-    with no mask, the window in one band (as :func:`estimate_models` cuts it; the
-    magnitudes' range, :data:`_KEPT_RANGE`, is the data's and not known here)."""
+    ``shape`` frame by frame (``derive``): on a backend that takes them, with no mask,
+    the window in one band (as :func:`estimate_models` cuts it, for a window of ``T``
+    frames centred on its reference frame, as the pipeline's steps are; the magnitudes'
+    range, :data:`_KEPT_RANGE`, is the data's and not known here)."""
     if masked or not getattr(backend_class(method, shape), "frame_stacks", False):
         return False
     T, Sy, Sx, H, W = shape
     rows, ext, n_signals = _rows_and_signals(shape, s, models)
     halo = window_halo(s)
+    if s.band_rows is not None:
+        return s.band_rows >= H - 2 * halo
     out_frames = max(1, T - 2 * get_filter_pair(s.filters).radius)
     most = band_rows(backend_class(method, shape), W, len(ext), len(rows), n_signals,
                      out_frames, halo, BAND_BYTES)

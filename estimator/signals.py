@@ -87,7 +87,7 @@ class FramedVolume:
     step sum only its new frames over the views, and no step holds the window itself;
     one that also keeps ``derive``'s values (each frame's filtered signals) lets a step
     filter only its new frames along t, x and y (on the numba backend, a step in one
-    band).  The maps are those of the same frames given as one array, bit for bit (the
+    band, with no mask).  The maps are those of the same frames given as one array, bit for bit (the
     camera weights' scale is a power of two, applied to the kept sums or, with kept
     signals, to their products, :func:`estimator.driver._unit_scale`; where a float64
     frame's magnitudes leave 2^-400 .. 2^400 the sums are taken again under the scaled

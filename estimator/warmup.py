@@ -21,10 +21,7 @@ __all__ = ["compile_kernels"]
 def compile_kernels() -> None:
     """Estimate a tiny random volume, just large enough for the numba backend, in float64
     and float32 (the input kernels are compiled per dtype), and once with the affine
-    motion model (its solve's kernel); and the products of a recording's kept frames
-    (:func:`estimator._kernels.weighted_product_frames`)."""
-    from ._kernels import frames_of, weighted_product_frames
-
+    motion model (its solve's kernel)."""
     side = int(np.ceil(np.sqrt(NUMBA_MIN_PIXELS)))
     rng = np.random.default_rng(0)
     volume = rng.random((5, 3, 3, side, side))
@@ -32,8 +29,6 @@ def compile_kernels() -> None:
         estimate(volume.astype(dtype), 100.0, (0.05, 0.05), model="full", sigma=2.0,
                  window=9)
     estimate(volume, 100.0, (0.05, 0.05), model="full", motion="affine", sigma=2.0, window=9)
-    frames = frames_of([rng.random((8, 8)) for _ in range(3)])
-    weighted_product_frames(np.ones((1, 3)), frames, frames, (8, 8))
 
 
 if __name__ == "__main__":

@@ -628,8 +628,9 @@ def estimate_step(plan: Plan, i: int, b: int, progress=None) -> tuple[dict, int]
     dtype = np.float32 if stored else np.float64
     if (src.values_kept and (a0, a1) == (0, H) and isinstance(plan.strategy, SinglePass)):
         # the window frame by frame: each frame's camera sums (and largest magnitude,
-        # reference view) and filtered signals computed once for the steps that share
-        # it, and no window assembled (the maps are the same bit for bit: FramedVolume)
+        # reference view) and, where the estimator keeps them, filtered signals computed
+        # once for the steps that share it, and no window assembled (the maps are the
+        # same bit for bit: FramedVolume)
         from gridflow.estimator.signals import FramedVolume
 
         window = FramedVolume(
@@ -746,8 +747,8 @@ def _local(plan: Plan, o: RunOptions) -> tuple[int, int, int]:
 
 def frame_cache(plan: Plan, tasks: int, budget: int) -> int:
     """Frames a worker keeps the values of (:meth:`gridflow.volume.Source.keep_values`:
-    each frame's camera sums, centre view and filtered signals,
-    :func:`gridflow.estimator.kept_frame_bytes`) for
+    each frame's camera sums, centre view and, where the estimator keeps them,
+    filtered signals, :func:`gridflow.estimator.kept_frame_bytes`) for
     ``tasks`` steps at once: a window and the frames the further steps reach beyond it,
     so that steps one frame apart decode and filter one frame each; none where steps are
     cut into row bands (memory is short there), where steps do not share frames, or where

@@ -129,12 +129,25 @@ MUTANTS = [
                 "test_a_volume_given_frame_by_frame_gives_the_maps_of_its_array",),
            "a recording's kept signals multiplied without the window's intensity scale"),
     Mutant("kept-span-unsigned", "base/recording.py",
-           "        sources = tuple(self._signature(u) for u in span)",
-           "        sources = ()",
+           "        full = (key, span, sources)",
+           "        full = (key, span, ())",
            (T + "test_series.py::"
                 "test_a_value_of_several_frames_is_kept_until_one_of_them_is_rewritten",),
            "a frame's kept signals kept after another frame they were filtered from "
            "changed on disk"),
+    Mutant("kept-signals-scaled-key", "estimator/driver.py",
+           "signals = _kept_signals(vol, unit, plan.frames, factor, backend)",
+           "signals = _kept_signals(vol, splan, plan.frames, factor, backend)",
+           (T + "test_estimator_properties.py::"
+                "test_a_volume_given_frame_by_frame_gives_the_maps_of_its_array",),
+           "a recording's kept signals keyed by the window's scale (filtered again when "
+           "it changes)"),
+    Mutant("planner-kept-despite-mask", "estimator/driver.py",
+           '    if masked or not getattr(backend_class(method, shape), "frame_stacks", False):',
+           '    if not getattr(backend_class(method, shape), "frame_stacks", False):',
+           (T + "test_estimator_properties.py::"
+                "test_the_planners_rule_for_kept_signals_is_the_estimators",),
+           "the planner counting a masked step's signals as kept"),
     Mutant("planner-framed-window", "pipeline/run.py",
            "    window = frame if kept else window_frames * Sy * Sx * r * W * itemsize",
            "    window = window_frames * Sy * Sx * r * W * itemsize",
@@ -171,8 +184,8 @@ MUTANTS = [
            (T + "test_estimator_properties.py::test_fast_spatial_filter_matches_numpy",),
            "the y filter's edge clamped one row early"),
     Mutant("kernels-product", "estimator/_kernels.py",
-           "                            out[k, y, x] += c * a[f, y, x] * b[f, y, x]",
-           "                            out[k, y, x] += c * a[f, y, x] * a[f, y, x]",
+           "                            out[k, y, x] += c * fa[y, x] * fb[y, x]",
+           "                            out[k, y, x] += c * fa[y, x] * fa[y, x]",
            (T + "test_estimator_properties.py::test_fast_path_agrees_with_reference",),
            "the FFT tensor's product of a signal with itself"),
     Mutant("driver-principal-point", "estimator/driver.py",

@@ -195,6 +195,12 @@ def test_a_volume_given_frame_by_frame_gives_the_maps_of_its_array():
             else:
                 vol = sv.volume * np.float32(factor)
             n = 5 if motion == "translation" else 13
+            if factor is not None:
+                # the second window's new frame 4x brighter: its scale (2^-2 of the
+                # first's) changes nothing that was kept, under the unscaled weights
+                # (the sums near float64's ends are taken under the scaled ones)
+                vol = vol.copy()
+                vol[n] *= 4
             kept, kept_signals = {}, {}
             for lo in (0, 1):
                 window = np.ascontiguousarray(vol[lo:lo + n])
@@ -229,6 +235,32 @@ def test_a_volume_given_frame_by_frame_gives_the_maps_of_its_array():
                             backend, motion, band, m, q)
                         assert np.array_equal(a[m][q], c[m][q], equal_nan=True), (
                             "kept signals", backend, motion, band, m, q)
+
+
+def test_the_planners_rule_for_kept_signals_is_the_estimators():
+    """The planner counts a recording step's signals as kept (estimator.driver.
+    _keeps_signals, through estimate_memory and kept_frame_bytes) exactly where
+    estimate_models keeps them through FramedVolume.derive: in one band with no mask,
+    not with a mask, not in row bands."""
+    from gridflow.estimator import EstimatorSettings
+    from gridflow.estimator.driver import _keeps_signals, kept_frame_bytes
+
+    sv = make_sinusoid(height=160, width=160, frames=9, dtype=np.float32, noise=0.01)
+    mask = np.ones((160, 160), dtype=bool)
+    mask[:12] = False
+    seen = []
+    for kw, masked in (({}, False), ({"band_rows": 20}, False), ({}, True)):
+        derived = []
+        framed, _ = _framed(sv.volume, {}, 0, derived)
+        estimate_models(framed, sv.focal_length, sv.camera_spacing, models=("full",),
+                        mask=mask if masked else None, **kw)
+        s = EstimatorSettings(**kw)
+        says = _keeps_signals(sv.volume.shape, s, ("full",), "fast", masked)
+        assert says == bool(derived), (kw, masked, says, derived)
+        per_frame = kept_frame_bytes(sv.volume.shape, s, ("full",), "fast", 4, masked=masked)
+        assert per_frame == 160 * 160 * (8 * (3 + (12 if says else 0)) + 4)
+        seen.append(says)
+    assert seen == [True, False, False]
 
 
 def test_the_products_in_batches_are_the_products_one_by_one(monkeypatch):
@@ -273,19 +305,25 @@ def test_the_products_in_batches_are_the_products_one_by_one(monkeypatch):
 
 def test_the_products_of_frames_kept_apart_are_those_of_the_stacked_frames():
     """weighted_product_frames reads a signal's frames where they are kept (through their
-    addresses, frames_of): the same bits as weighted_product of the frames stacked, into
-    a padded out too; frames of another type, shape or layout, lists of another length,
+    addresses, frames_of): the same bits as numpy's products and sums in the same order,
+    as weighted_product of the frames stacked, into a padded out too; frames of another type, shape or layout, lists of another length,
     and an out smaller than the frames are refused before the kernel runs."""
-    from gridflow.estimator._kernels import frames_of, weighted_product, weighted_product_frames
+    from gridflow.estimator._kernels import (frames_of, weighted_product,
+                                             weighted_product_frames)
 
     rng = np.random.default_rng(3)
     a = [rng.standard_normal((37, 50)) for _ in range(5)]
     b = [rng.standard_normal((37, 50)) for _ in range(5)]
     coefs = rng.standard_normal((3, 5))
     for shape in ((37, 50), (40, 64)):
-        want = weighted_product(coefs, np.stack(a), np.stack(b), shape)
-        got = weighted_product_frames(coefs, frames_of(a), frames_of(b), shape)
-        assert np.array_equal(want.view(np.uint64), got.view(np.uint64)), shape
+        # numpy, in the kernel's order: out += (c a_f) b_f, frame after frame
+        want = np.zeros((3,) + shape)
+        for k in range(3):
+            for f in range(5):
+                want[k, :37, :50] += (coefs[k, f] * a[f]) * b[f]
+        for got in (weighted_product_frames(coefs, frames_of(a), frames_of(b), shape),
+                    weighted_product(coefs, np.stack(a), np.stack(b), shape)):
+            assert np.array_equal(want.view(np.uint64), got.view(np.uint64)), shape
     for bad in (a[:4] + [a[4].astype(np.float32)], a[:4] + [a[4][:, :49]],
                 a[:4] + [np.asfortranarray(a[4])], a[:4] + [a[4][None]], []):
         with pytest.raises(ValueError, match="frames_of: C-contiguous float64"):

@@ -164,8 +164,6 @@ class _ZarrReader:
         # the unit Zarr stores: a shard where the array is sharded, else a chunk
         self._grid = tuple(getattr(vol, "shards", None) or vol.chunks)
         self._per_frame = [range(-(-n // c)) for n, c in zip(vol.shape[1:], self._grid[1:])]
-        # decoded whole frames (as stored, checked finite) kept for the next steps:
-        # frame -> (signature of its chunk files, frames); see cache_frames
         # decoded frames (see cache_frames) and what the estimator computed from a frame
         # alone (see keep_values), each frame -> (signature, {key: value}); (frame, key)
         # -> Event while a thread computes it (_memoised)

@@ -133,6 +133,10 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
     left = {e: len(set(key)) for key, e in sums.items() if len(key) > 1}
     keep_rows = slice(halo, h - halo)
     keep_cols = slice(c0, c1)
+
+    def to_plane(spectrum, e):
+        # the x-inverse (complex to real) of a plane's kept rows, its kept columns into Jp
+        Jp[e] = sfft.irfft(spectrum, n=shape[1], axis=1, **kw, **over)[:, keep_cols]
     # the products of one pair of signals under several powers of t in one pass over the
     # pair (``product``; with the zoom-blur correction 82 passes instead of 195 under
     # affine motion, 78 instead of 117 under translation), in an order that adds every
@@ -190,13 +194,10 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
                     if summed:
                         left[e] -= 1
                         if not left[e]:
-                            full = sfft.irfft(acc[e], n=shape[1], axis=1, **kw, **over)
-                            Jp[e] = full[:, keep_cols]
+                            to_plane(acc[e], e)
                             acc[e] = None
                     else:
-                        cmul(ypass[py][keep_rows], KX[px][None, :], xbuf)
-                        full = sfft.irfft(xbuf, n=shape[1], axis=1, **kw, **over)
-                        Jp[e] = full[:, keep_cols]
+                        to_plane(cmul(ypass[py][keep_rows], KX[px][None, :], xbuf), e)
     if any(left.values()):
         raise AssertionError("a summed plane of the tensor missed terms")
     return Jp, idx

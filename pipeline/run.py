@@ -728,7 +728,8 @@ def _local(plan: Plan, o: RunOptions) -> tuple[int, int, int]:
     need = step_memory(plan.source.shape, frames, r1 - r0, plan.halo,
                        itemsize=_read_itemsize(plan.source, plan.strategy),
                        strategy=plan.strategy)
-    if _framed(plan, 1) is not None and _framed(plan, 1) <= budget:
+    one = _framed(plan, 1)
+    if one is not None and one <= budget:
         # whole steps whose worker keeps its frames' values: as many at once as fit with
         # the frames kept for them (frame_cache keeps them for that many)
         k = 1

@@ -122,6 +122,11 @@ MUTANTS = [
                 "test_the_products_in_batches_are_the_products_one_by_one",),
            "the products batched by pair without keeping the summed planes' order "
            "(other bits)"),
+    Mutant("spectral-lean-order", "estimator/spectral.py",
+           "            return opens - closes, g[0], rank[g]",
+           "            return rank[g]",
+           (T + "test_estimator_properties.py::test_the_batches_keep_few_summed_planes_open",),
+           "the products in the groups' order, many summed planes open at once (memory)"),
     Mutant("kept-signals-unscaled", "estimator/backends.py",
            "coefs * (a.scale * b.scale), frames(a), frames(b), shape, out)",
            "coefs, frames(a), frames(b), shape, out)",

@@ -178,8 +178,15 @@ def estimate_shear_range(views: np.ndarray, *, filters: str = DEFAULTS["filters"
 # estimator's window (5 taps: 2 coarse px = 2 k) and its derivative filters (5 taps: 2 k)
 _COARSE_SUPPORT = 1.5 + 2.0 + 2.0
 # Where the data leave a pixel's shear open: the aggregated cost of its best shear within
-# a factor of two (log10 2 decades) of its median over the shears
+# a factor of two (log10 2 decades) of its median over the shears, or of its best rival
 _OPEN_DECADES = float(np.log10(2.0))
+# A rival of the best shear: a shear at least this many steps from it (a neighbouring
+# shear fits a disparity between the two about as well: no rival).  On a texture-poor
+# surface every shear's cost is noise, and the least of a pixel's many windows and
+# sub-grids at one shear can undercut the others'; near texture the wrong shears cost
+# more and the spread looks decided, while the far shear of such a lucky window and the
+# right one still tie (bench/README.md, *Light fields*)
+_RIVAL_STEPS = 2
 # The coarse disparity's cost, decades of model error per px per view between a shear
 # and it: where the data leave the shear open (costs within _OPEN_DECADES) it decides
 _PRIOR_DECADES = 1.0
@@ -241,7 +248,8 @@ def _prior_cost(C: np.ndarray, lo: np.ndarray, prior, aggregate: int,
     at least half of whose aggregation box (itself among them; beyond the image counts
     as not open) has its best shear's cost within :data:`_OPEN_DECADES` of its median
     over the shears (a smooth or texture-poor surface: every shear fits about as well;
-    a region, not a pixel between two surfaces).
+    a region, not a pixel between two surfaces) or of the best cost of the shears
+    :data:`_RIVAL_STEPS` or more steps from it (two minima the data do not tell apart).
 
     A coarse estimate counts only as deep inside the open region as its data reach
     (the image's edge counting as outside: it does not mix in the textured surfaces
@@ -266,7 +274,12 @@ def _prior_cost(C: np.ndarray, lo: np.ndarray, prior, aggregate: int,
     from scipy.ndimage import distance_transform_edt, label, uniform_filter
 
     spread = np.median(C, 0) - C.min(0)
-    own = data & (spread < _OPEN_DECADES)
+    # the best shear's cost against its best rival's (_RIVAL_STEPS): two minima apart by
+    # less than the open margin leave the shear open too
+    best = C.argmin(0)
+    far = np.abs(np.arange(len(lo))[:, None, None] - best[None]) >= _RIVAL_STEPS
+    rival = np.where(far, C, np.inf).min(0) - C.min(0)
+    own = data & ((spread < _OPEN_DECADES) | (rival < _OPEN_DECADES))
     box = 2 * int(aggregate) + 1
     flat = data & (uniform_filter(own.astype(float), box, mode="constant") >= 0.5)
     # distance to the nearest pixel outside the open region, the image's edge outside
@@ -528,7 +541,8 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     smooth : bool
         ``"lines"`` and ``"occlusion"``: where the data leave a region's shear open
         (smooth or texture-poor: the best shear's aggregated cost within a factor of two
-        of its median over the shears), choose by the confirmed coarse disparity of the
+        of its median over the shears, or of the best of the shears two or more steps
+        from it), choose by the confirmed coarse disparity of the
         decimated light field (the range's coarse pass at 1/32 ... 1/2 resolution: the
         coarsest level whose data lie inside the region, a finer one only where it
         agrees within half a shear with a coarser one's estimate; each averaged over

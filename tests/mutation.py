@@ -127,6 +127,12 @@ MUTANTS = [
            "            return rank[g]",
            (T + "test_estimator_properties.py::test_the_batches_keep_few_summed_planes_open",),
            "the products in the groups' order, many summed planes open at once (memory)"),
+    Mutant("lightfield-no-rival", "estimator/lightfield.py",
+           "    own = data & ((spread < _OPEN_DECADES) | (rival < _OPEN_DECADES))",
+           "    own = data & (spread < _OPEN_DECADES)",
+           (T + "test_lightfield.py::"
+                "test_a_far_shear_that_ties_the_best_by_noise_leaves_the_shear_open",),
+           "a far shear that ties the best one by noise does not leave the shear open"),
     Mutant("kept-signals-unscaled", "estimator/backends.py",
            "coefs * (a.scale * b.scale), frames(a), frames(b), shape, out)",
            "coefs, frames(a), frames(b), shape, out)",

@@ -840,6 +840,31 @@ def test_no_pixel_of_a_smooth_wall_is_off_by_a_pixel():
     assert err[plane].max() <= 1.0, (err[plane] > 1).sum()
 
 
+def test_a_far_shear_that_ties_the_best_by_noise_leaves_the_shear_open(monkeypatch):
+    """The smooth wall with noise seed 3: a few px from where the textured plane comes
+    through it, the least cost of a pixel's windows and sub-grids at the shear of -3 (a
+    window of pure noise that happens to fit well) undercuts the right shear's by 0.06
+    decade, while the texture raises the shears between them: the spread over the shears
+    looks decided.  A shear two or more steps from the best that fits within the open
+    margin (_RIVAL_STEPS) leaves the shear open, so the coarse disparity takes it: no
+    wall pixel off by more than 1 px outside the 3-px band and the 15-px border
+    (measured: 0); without the rival, 10 (up to 3.88 px), which this run must show too
+    (so the scene tests the rule)."""
+    from gridflow.bench.lightfield_outliers import scored_mask
+    from gridflow.estimator import lightfield
+    from gridflow.generators.lightfield import smooth_wall_views
+
+    views, truth = smooth_wall_views(n=9, size=256, shading=0.02, noise=4 / 255, seed=3)
+    shears = tuple(range(-3, 4))
+    wall = scored_mask(truth, band=3, border=15) & (truth == 1.0)
+    assert wall.sum() > 20000
+    err = np.abs(lightfield.estimate_refocused(views, shears)["disparity"] - truth)
+    assert err[wall].max() <= 1.0, (err[wall] > 1).sum()
+    monkeypatch.setattr(lightfield, "_RIVAL_STEPS", len(shears))
+    former = np.abs(lightfield.estimate_refocused(views, shears)["disparity"] - truth)
+    assert (former[wall] > 1.0).sum() > 0
+
+
 def test_textured_scenes_do_not_call_on_the_coarse_disparity():
     """Where the data fix the shear (every region textured) the coarse disparity is not
     consulted and the estimate is that of ``smooth=False`` bit for bit (as the study's

@@ -9,8 +9,9 @@ on a light field of one frame: the estimator's single pass (the central 5 x 5 vi
 the sinusoid defaults sigma 16 px / 65 taps); refocusing over the shears a coarse pass
 estimates from the data, each pixel's estimate chosen among 1-D camera sub-grids
 (segments of 5 views of the centre row and column) and shifted windows, sigma 1 px /
-5 taps; where the data leave a region's shear open (every shear fits about as well), the
-shear of the confirmed coarse disparity; the fill of the pixels left without an
+5 taps; where the data leave a region's shear open (every shear fits about as well, or
+one two or more steps from the best as well as it), the shear of the confirmed coarse
+disparity; the fill of the pixels left without an
 estimate; a 3 x 3 median of the disparity.  A last row tries the whole row and column
 instead of segments (not in the default: worse between thin stripes).  Scenes: two synthetic
 two-layer scenes of exact disparity (bands 10 px high with 12 px gaps, and thin stripes

@@ -39,8 +39,9 @@ pixels exactly, with no interpolation) and chooses, per pixel, one shear's estim
     images and keeping the more confident (Wanner and Goldluecke).
 
 With ``"lines"`` and ``"occlusion"``, a region whose shear the data leave open (smooth or
-texture-poor: every shear fits about as well) takes the shear nearest the confirmed
-coarse disparity of the decimated light field (``smooth``; :func:`_prior_cost`).
+texture-poor: every shear fits about as well, or a shear two or more steps from the best
+fits as well as it) takes the shear nearest the confirmed coarse disparity of the
+decimated light field (``smooth``; :func:`_prior_cost`).
 
 ``gridflow peers`` scores them side by side (``results/peers_depth.csv`` for the
 rendered cube).
@@ -249,7 +250,8 @@ def _prior_cost(C: np.ndarray, lo: np.ndarray, prior, aggregate: int,
     as not open) has its best shear's cost within :data:`_OPEN_DECADES` of its median
     over the shears (a smooth or texture-poor surface: every shear fits about as well;
     a region, not a pixel between two surfaces) or of the best cost of the shears
-    :data:`_RIVAL_STEPS` or more steps from it (two minima the data do not tell apart).
+    :data:`_RIVAL_STEPS` or more steps from it (positions in ``lo``: a far shear the data
+    do not tell apart from the best).
 
     A coarse estimate counts only as deep inside the open region as its data reach
     (the image's edge counting as outside: it does not mix in the textured surfaces
@@ -262,8 +264,9 @@ def _prior_cost(C: np.ndarray, lo: np.ndarray, prior, aggregate: int,
     alone is a chance agreement), and every open pixel of a region with such estimates
     takes the nearest of them.  There the cost grows by
     :data:`_PRIOR_DECADES` per px per view between the shear and that estimate: a shear
-    a step or more further from it than another cannot win (an open pixel's costs lie
-    within 0.3 decade); between the two shears around it, the nearer wins unless the
+    a step or more further from it than another cannot win where their costs lie within
+    a decade (an open pixel's best lies within 0.3 decade of its median over the shears
+    or of a far shear); between the two shears around it, the nearer wins unless the
     estimate lies near their middle.  ``prior()`` gives the coarse levels
     (:func:`_coarse_prior`); it is called only where some open region is as deep as the
     finest level's reach.

@@ -217,7 +217,8 @@ def _batches(order: list, summed: list) -> list[list]:
     planes not yet open net of those it completes (ties by pair, then by ``order``), so
     that a plane's spectrum is let go soon after it is opened (under affine motion at
     most 24 of the 153 summed planes are open at once, 1.8 MB each at 512^2, against 110
-    in ``order``'s sequence; 90 passes instead of 82).  A group then joins an earlier
+    in the batches before this order and 70 with ``order``'s products one at a time; 90
+    passes instead of 82).  A group then joins an earlier
     batch of its pair where every group that must come before it is done by then.
     """
     rank = {g: i for i, g in enumerate(order)}

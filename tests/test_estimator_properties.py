@@ -303,27 +303,35 @@ def test_the_products_in_batches_are_the_products_one_by_one(monkeypatch):
         assert np.array_equal(merged.view(np.uint64), single.view(np.uint64)), motion
 
 
-def test_the_batches_keep_few_summed_planes_open():
+def test_the_batches_keep_few_summed_planes_open(monkeypatch):
     """The FFT tensor lets a summed plane's spectrum (1.8 MB at 512^2) go as soon as its
     last term is in; estimator.spectral._batches orders the products so that few are open
-    at once.  Replayed as structure_tensor_fft consumes the batches: at most a quarter of
-    the summed planes are open at any time on both motion models (the affine model: 24
-    of 153; in the batches before this order, 110), and every group comes once."""
-    from gridflow.estimator import spectral
-    from gridflow.estimator.models import covering_rows, get_model, zoom_rows
-    from gridflow.estimator.tensor import entry_groups, zoom_terms
+    at once.  The groups and summed planes structure_tensor_fft hands to _batches, and the
+    batches it gets back, replayed as it consumes them: at most a quarter of the summed
+    planes are open at any time on both motion models (the affine model: 24 of 153; in
+    the batches before this order, 110), and every group comes once."""
+    from gridflow.estimator import _kernels, spectral
+    from gridflow.estimator.models import (ROWS, ZOOM_ROW_SIGNALS, covering_rows,
+                                           get_model, zoom_rows)
+    from gridflow.estimator.tensor import gaussian_moment_kernels, zoom_terms
 
+    rng = np.random.default_rng(2)
+    F, h, W, halo = 3, 24, 32, 4
+    batches = spectral._batches
     for motion in ("translation", "affine"):
         rows = covering_rows([get_model("full", 2, False, motion)])
         ext = zoom_rows(rows)
-        groups = entry_groups(ext)
-        term = {(a, b): (key, px, py) for key, entries in groups.items()
-                for a, b, _, _, px, py in entries}
-        term.update({(b, a): t for (a, b), t in list(term.items())})
-        names, terms = zoom_terms(ext, rows)
-        sums = {tuple(sorted(term[i, j] for i in terms[a] for j in terms[b]))
-                for a in range(len(names)) for b in range(a, len(names))}
-        summed = [key for key in sums if len(key) > 1]
+        sig = {({**ROWS, **ZOOM_ROW_SIGNALS})[r][0]: None for r in ext}
+        sig = {n: rng.standard_normal((F, h, W)) for n in sig}
+        seen = []
+        monkeypatch.setattr(spectral, "_batches", lambda order, summed: seen.append(
+            (list(order), list(summed), batches(order, summed))) or seen[-1][2])
+        spectral.structure_tensor_fft(
+            sig, np.arange(F) - 1, ext, gaussian_moment_kernels(1.0, 2 * halo + 1), halo,
+            cols=slice(halo, W - halo), fft="numpy", product=_kernels.weighted_product,
+            combine=zoom_terms(ext, rows))
+        monkeypatch.undo()
+        (order, summed, used), = seen
 
         def most_open(sequence):
             left = {key: len(set(key)) for key in summed}
@@ -339,11 +347,11 @@ def test_the_batches_keep_few_summed_planes_open():
             assert not any(left.values()), motion
             return most
 
-        lean = [g for batch in spectral._batches(list(groups), summed) for g in batch]
-        assert sorted(lean, key=str) == sorted(groups, key=str), motion
-        # the bound is not met by any order: one product at a time in the groups' order
+        lean = [g for batch in used for g in batch]
+        assert sorted(lean, key=str) == sorted(order, key=str), motion
+        # not every order meets the bound: one product at a time in the groups' order
         # leaves over a third of the summed planes open
-        plain = most_open(list(groups))
+        plain = most_open(order)
         assert plain > len(summed) / 3, (motion, plain, len(summed))
         assert most_open(lean) <= len(summed) / 4, (motion, most_open(lean), len(summed))
 

@@ -908,6 +908,40 @@ def test_each_open_region_takes_the_coarse_disparity_of_its_own():
     assert (lo[idx[:, 40:42]] == 0).all()
 
 
+def test_a_far_shear_within_the_open_margin_of_the_best_leaves_the_shear_open():
+    """_prior_cost on costs built by hand: the best shear (-3) and one four steps from
+    it (1) within a factor of two (0.2 decade apart), the shears between and beyond 0.5
+    decade above the best, so that the spread over the shears (0.5) looks decided.  The
+    far tie leaves the shear open and the coarse disparity (1.0) decides; a shear one
+    step from the best at the same cost is no rival (a disparity between the two fits
+    both), and neither is a far shear 0.35 decade above (beyond the factor of two).  Of
+    two shears neither is two steps from the other: no rival, no error."""
+    from gridflow.estimator.lightfield import _OPEN_DECADES, _prior_cost
+
+    H = W = 40
+    lo = np.arange(-3, 4)
+    coarse = np.ones((H, W))
+
+    def cost(second, at):
+        C = np.full((lo.size, H, W), 0.5)
+        C[0] = 0.0
+        C[at] = second
+        return C
+
+    assert 0.2 < _OPEN_DECADES < 0.35
+    C2, used = _prior_cost(cost(0.2, 4), lo, lambda: [(coarse, 1.0)], 0,
+                           np.ones((H, W), bool))
+    assert used.all() and (lo[C2.argmin(0)] == 1).all()
+    for second, at in ((0.2, 1), (0.35, 4)):
+        C2, used = _prior_cost(cost(second, at), lo, lambda: [(coarse, 1.0)], 0,
+                               np.ones((H, W), bool))
+        assert not used.any() and (lo[C2.argmin(0)] == -3).all(), (second, at)
+    C = np.zeros((2, H, W))
+    C[0] = -1.0                         # the spread, 0.5 decade, leaves it decided
+    C2, used = _prior_cost(C, lo[:2], lambda: [(coarse, 1.0)], 0, np.ones((H, W), bool))
+    assert not used.any() and np.array_equal(C2, C)
+
+
 def test_a_finer_level_is_checked_against_the_coarser_levels_own_estimates():
     """Two open regions: the coarse level has estimates in the left one only, the finer
     level in the right one only.  The finer level's are checked against the coarse

@@ -125,7 +125,8 @@ MUTANTS = [
     Mutant("spectral-lean-order", "estimator/spectral.py",
            "            return opens - closes, g[0], rank[g]",
            "            return rank[g]",
-           (T + "test_estimator_properties.py::test_the_batches_keep_few_summed_planes_open",),
+           (T + "test_estimator_properties.py::"
+                "test_the_products_in_batches_are_the_products_one_by_one",),
            "the products in the groups' order, many summed planes open at once (memory)"),
     Mutant("lightfield-no-rival", "estimator/lightfield.py",
            "    own = data & ((spread < _OPEN_DECADES) | (rival < _OPEN_DECADES))",

@@ -263,12 +263,36 @@ def test_the_planners_rule_for_kept_signals_is_the_estimators():
     assert seen == [True, False, False]
 
 
+def _most_open(sequence, summed) -> int:
+    """The most summed planes open at once (a plane's spectrum kept from its first term
+    to its last) with the product groups taken in ``sequence``: each plane's terms are
+    ``((pair, tpow), px, py)``, a group's terms all go in together."""
+    left = {key: len(set(key)) for key in summed}
+    opened, most = set(), 0
+    for g in sequence:
+        for key in summed:
+            for t in set(key):
+                if t[0] == g:
+                    opened.add(key)
+                    left[key] -= 1
+        most = max(most, len(opened))
+        opened -= {key for key in opened if not left[key]}
+    assert not any(left.values())
+    return most
+
+
 def test_the_products_in_batches_are_the_products_one_by_one(monkeypatch):
     """The FFT tensor makes each pair of signals' products under every power of t in one
     pass (estimator.spectral._batches, estimator._kernels.weighted_product): every plane
     is the same bits as with the products made one at a time in the former order, on
     both motion models (with the zoom-blur correction's summed planes, whose terms must
-    be added in the former order), and the passes are fewer than the products."""
+    be added in the former order), and the passes are fewer than the products.
+
+    The batches also keep few summed planes open (each a spectrum of 1.8 MB at 512^2,
+    let go after its last term): the groups and summed planes structure_tensor_fft hands
+    to _batches, and the batches it gets back, replayed as it consumes them, leave at
+    most a quarter of the summed planes open at once (the affine model: 24 of 153; the
+    batches before this order, 110), and every group comes once."""
     from gridflow.estimator import _kernels, spectral
     from gridflow.estimator.models import (ROWS, ZOOM_ROW_SIGNALS, covering_rows,
                                            get_model, zoom_rows)
@@ -288,72 +312,27 @@ def test_the_products_in_batches_are_the_products_one_by_one(monkeypatch):
                    product=_kernels.weighted_product, cmul=_kernels.complex_multiply,
                    cmadd=_kernels.complex_multiply_add, combine=zoom_terms(ext, rows))
         seen = []
-        monkeypatch.setattr(spectral, "_batches",
-                            lambda order, summed: seen.append(batches(order, summed))
-                            or seen[-1])
+        monkeypatch.setattr(spectral, "_batches", lambda order, summed: seen.append(
+            (list(order), list(summed), batches(order, summed))) or seen[-1][2])
         merged, idx = spectral.structure_tensor_fft(sig, tvals, ext, kernels, halo, **run)
         monkeypatch.setattr(spectral, "_batches",
                             lambda order, summed: [[g] for g in order])
         single, idx1 = spectral.structure_tensor_fft(sig, tvals, ext, kernels, halo, **run)
         monkeypatch.undo()
-        products = sum(map(len, seen[0]))
-        assert len(seen[0]) < products and max(map(len, seen[0])) > 1, (motion, seen[0])
+        (order, summed, used), = seen
+        products = sum(map(len, used))
+        assert len(used) < products and max(map(len, used)) > 1, (motion, used)
         np.testing.assert_array_equal(idx, idx1)
         # the bits, signs of zeros included
         assert np.array_equal(merged.view(np.uint64), single.view(np.uint64)), motion
-
-
-def test_the_batches_keep_few_summed_planes_open(monkeypatch):
-    """The FFT tensor lets a summed plane's spectrum (1.8 MB at 512^2) go as soon as its
-    last term is in; estimator.spectral._batches orders the products so that few are open
-    at once.  The groups and summed planes structure_tensor_fft hands to _batches, and the
-    batches it gets back, replayed as it consumes them: at most a quarter of the summed
-    planes are open at any time on both motion models (the affine model: 24 of 153; in
-    the batches before this order, 110), and every group comes once."""
-    from gridflow.estimator import _kernels, spectral
-    from gridflow.estimator.models import (ROWS, ZOOM_ROW_SIGNALS, covering_rows,
-                                           get_model, zoom_rows)
-    from gridflow.estimator.tensor import gaussian_moment_kernels, zoom_terms
-
-    rng = np.random.default_rng(2)
-    F, h, W, halo = 3, 24, 32, 4
-    batches = spectral._batches
-    for motion in ("translation", "affine"):
-        rows = covering_rows([get_model("full", 2, False, motion)])
-        ext = zoom_rows(rows)
-        sig = {({**ROWS, **ZOOM_ROW_SIGNALS})[r][0]: None for r in ext}
-        sig = {n: rng.standard_normal((F, h, W)) for n in sig}
-        seen = []
-        monkeypatch.setattr(spectral, "_batches", lambda order, summed: seen.append(
-            (list(order), list(summed), batches(order, summed))) or seen[-1][2])
-        spectral.structure_tensor_fft(
-            sig, np.arange(F) - 1, ext, gaussian_moment_kernels(1.0, 2 * halo + 1), halo,
-            cols=slice(halo, W - halo), fft="numpy", product=_kernels.weighted_product,
-            combine=zoom_terms(ext, rows))
-        monkeypatch.undo()
-        (order, summed, used), = seen
-
-        def most_open(sequence):
-            left = {key: len(set(key)) for key in summed}
-            opened, most = set(), 0
-            for g in sequence:
-                for key in summed:
-                    for t in set(key):
-                        if t[0] == g:
-                            opened.add(key)
-                            left[key] -= 1
-                most = max(most, len(opened))
-                opened -= {key for key in opened if not left[key]}
-            assert not any(left.values()), motion
-            return most
-
         lean = [g for batch in used for g in batch]
         assert sorted(lean, key=str) == sorted(order, key=str), motion
         # not every order meets the bound: one product at a time in the groups' order
         # leaves over a third of the summed planes open
-        plain = most_open(order)
+        plain = _most_open(order, summed)
         assert plain > len(summed) / 3, (motion, plain, len(summed))
-        assert most_open(lean) <= len(summed) / 4, (motion, most_open(lean), len(summed))
+        most = _most_open(lean, summed)
+        assert most <= len(summed) / 4, (motion, most, len(summed))
 
 
 def test_the_products_of_frames_kept_apart_are_those_of_the_stacked_frames():

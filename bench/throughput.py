@@ -1,6 +1,6 @@
 """Throughput benchmark: the fast estimator against an honest straightforward baseline.
 
-    python -m gridflow.bench.throughput                 # all sections (about 13 minutes)
+    python -m gridflow.bench.throughput                 # all sections (about 12 minutes)
     python -m gridflow.bench.throughput --sections inprocess
     python -m gridflow.bench.throughput --sizes 256 512 --cli-size 512
 

@@ -44,11 +44,12 @@ Sections (each prints its table):
     and imports not), the process's wall
     and CPU time and its peak resident memory; then ``--rec-long`` steps from the same
     first step, and the rate of a long run: the steps beyond the first ``--rec-steps``
-    over the difference of the two runs' times, in each round (a run's first steps
-    compute every frame of their windows, each later step one new frame: a grower's
-    recording of 1440 steps runs at this rate); and one step's window estimated by the
-    baseline in this process, against which a long run's step (or, without long runs,
-    the short run's) is set.
+    over the difference of the two runs' times, in each round, the short run first (a
+    run's first steps compute every frame of their windows, each later step one new
+    frame: a grower's recording of 1440 steps should run at about this rate; a
+    difference of two runs also takes in the machine's drift between them); and one
+    step's window estimated by the baseline in this process, against which a long
+    run's step (or, without long runs, the short run's) is set.
 ``scaling``
     The fast path alone at each of ``--sizes``, each in a fresh process: time, pixels per
     second over the *interior* (pixels with a full window: the border is 46 % of a 256^2
@@ -262,10 +263,6 @@ def recording(size: int, frames: int, steps: int, repeat: int,
         for motion in (TRANSLATION.name, AFFINE.name):
             reach = temporal_reach(EstimatorSettings(motion=motion))
             first = reach
-            if first + max(steps, long_steps or 0) - 1 > frames - 1 - reach:
-                raise ValueError(f"{max(steps, long_steps or 0)} steps of the {motion} model "
-                                 f"need {max(steps, long_steps or 0) + 2 * reach} frames; "
-                                 f"the recording has {frames} (--rec-frames)")
 
             def run(n, name):
                 out = Path(tmp) / name
@@ -277,8 +274,10 @@ def recording(size: int, frames: int, steps: int, repeat: int,
                     raise RuntimeError(f"no rate of {n} steps in gridflow's report:\n"
                                        f"{r.stdout}")
                 shutil.rmtree(out)
-                return dict(steps=n, run_s=float(m.group(2)), rate=float(m.group(3)),
-                            wall=wall, cpu=cpu, peak_mb=peak / 2**20)
+                # the run's seconds from its rate (printed to 3 decimals; its seconds to 1)
+                rate = float(m.group(3))
+                return dict(steps=n, run_s=n / rate, rate=rate, wall=wall, cpu=cpu,
+                            peak_mb=peak / 2**20)
             runs, longs = [], []
             for i in range(repeat):
                 runs.append(run(steps, f"{motion}{i}.zarr"))
@@ -354,6 +353,18 @@ def main(argv=None) -> int:
                     help="steps of each long recording run (default 24; 0: none)")
     ap.add_argument("--_one", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    if "recording" in a.sections:
+        if a.rec_steps < 1 or a.rec_long < 0 or 0 < a.rec_long <= a.rec_steps:
+            ap.error(f"--rec-steps must be at least 1 and --rec-long 0 or more than it, got "
+                     f"{a.rec_steps} and {a.rec_long}")
+        from gridflow.estimator import temporal_reach
+        from gridflow.estimator.settings import EstimatorSettings
+
+        need = max(a.rec_steps, a.rec_long) + 2 * temporal_reach(
+            EstimatorSettings(motion=AFFINE.name))
+        if need > a.rec_frames:
+            ap.error(f"{max(a.rec_steps, a.rec_long)} steps under affine motion need "
+                     f"{need} frames: --rec-frames {a.rec_frames} is too few")
     if a._one:
         print(json.dumps(_one_size(a._one)))
         return 0
@@ -427,7 +438,8 @@ def main(argv=None) -> int:
               "process wall s | process CPU s | "
               + (f"beyond the first {n}: steps/s (median; range) | CPU s a step | " if m
                  else "")
-              + "peak RSS MiB (max) | baseline s a window (CPU) | baseline / step |")
+              + "peak RSS MiB (max) | baseline s a window (CPU) | baseline / "
+              + ("a long run's step |" if m else "step |"))
         print("|---|---|---|---|---|---|" + ("---|---|" if m else "") + "---|---|---|")
         for r in recording(a.size, a.rec_frames, n, a.repeat, m):
             rate = [x["rate"] for x in r["runs"]]

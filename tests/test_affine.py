@@ -273,6 +273,29 @@ def test_rate_coefficients_are_the_rates_linear_map():
                                    rtol=1e-12, atol=1e-12)
 
 
+def test_the_affine_system_is_affine_observations_of_each_unit_motion():
+    """The numba solve's 9 x 9 system (estimator._affine._system, written out entry by
+    entry) is, column j, :func:`affine_observations` of the unit motion e_j: the same
+    values exactly, on random pixels, with exact zeros among the slopes and the pixel
+    coordinates (a wrong sign or a swapped slope in one entry fails it)."""
+    from gridflow.estimator._affine import _system
+    from gridflow.estimator.disentangle import affine_observations
+
+    rng = np.random.default_rng(12)
+    N = 400
+    Z, Zx, Zy = rng.uniform(50, 150, N), rng.normal(0, 0.5, N), rng.normal(0, 0.5, N)
+    x0, y0 = rng.uniform(-256, 256, N), rng.uniform(-256, 256, N)
+    Zx[:60], Zy[40:100], x0[80:140], y0[120:180] = 0.0, -0.0, 0.0, 0.0
+    M = np.empty((N, 9, 9))
+    for i in range(N):
+        _system.py_func(Z[i], Zx[i], Zy[i], x0[i], y0[i], 1000.0, M[i])
+    for j in range(9):
+        theta = np.zeros((9, N))
+        theta[j] = 1.0
+        want = affine_observations(theta, Z, Zx, Zy, x0, y0, 1000.0)
+        np.testing.assert_array_equal(M[:, :, j], want.T, err_msg=f"column {j}")
+
+
 def test_affine_kernel_is_the_numpy_solve():
     """The numba backend's per-pixel solve (:mod:`estimator._affine`) against
     :func:`solve_affine` (numpy, LAPACK ``gesv``) on random systems with slopes up to

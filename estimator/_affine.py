@@ -3,8 +3,9 @@ solve_affine` in one parallel pass.
 
 Per pixel it builds the 9 x 9 system ``M`` of :func:`estimator.disentangle.
 affine_observations` (column ``j`` the observations of unit motion ``j``, the same
-formulas written out for each unit motion: :func:`_system`), the outputs' coefficients ``C`` (9 x 7: ``U`` and the
-rates of :func:`estimator.disentangle._rate_coefficients`), solves ``M^T A = C`` by LU
+formulas written out for each unit motion: :func:`_system`), the outputs'
+coefficients ``C`` (9 x 7: ``U`` and the rates of
+:func:`estimator.disentangle._rate_coefficients`), solves ``M^T A = C`` by LU
 with partial pivoting (LAPACK ``gesv``'s algorithm) and forms ``A^T o``, the errors
 ``sqrt(sum_j A_jq^2 v_j)`` and the growth's sensitivity ``A[:, growth]``.  The numpy
 version makes each of these an array over all pixels (0.6 GB of temporaries at 512^2)
@@ -41,8 +42,8 @@ def _system(Z, a, b, x0, y0, f, M):
     solve of 448^2 pixels on one thread went from 0.174 s (the general expression
     evaluated for each of the nine columns) to 0.115 s, a third less (measured).  Where
     ``c`` or ``Z`` is 0 (no plane through the pixel's point) the entries are not those
-    of the general expression (0 where it gives NaN), and the solve's outputs were NaN either
-    way in the cases tried.
+    of the general expression (0 where it gives NaN), and the solve's outputs were NaN
+    either way in the cases tried.
     """
     c = Z * (1.0 - a * x0 / f - b * y0 / f)
     Zdx = a * Z * Z / (c * f)

@@ -56,7 +56,7 @@ def _system(Z, a, b, x0, y0, f, M):
     cc = c * c
     Zx0f = Z * x0 / f
     Zy0f = Z * y0 / f
-    # U0, U1, U2: the velocity of the pixel's surface point
+    # U0, U1, U2: the velocity of the pixel's surface point (wx of U0 is wy of U1)
     wx = f / Z
     M[0, 0] = wx
     M[1, 0] = 0.0
@@ -67,13 +67,12 @@ def _system(Z, a, b, x0, y0, f, M):
     M[6, 0] = v * a / c
     M[7, 0] = a * a / cc
     M[8, 0] = b * a / cc
-    wy = f / Z
     M[0, 1] = 0.0
-    M[1, 1] = wy
+    M[1, 1] = wx
     M[2, 1] = 0.0
     M[3, 1] = 0.0
-    M[4, 1] = -(wy * Zdx / Z)
-    M[5, 1] = -(wy * Zdy / Z)
+    M[4, 1] = M[2, 0]
+    M[5, 1] = M[3, 0]
     M[6, 1] = v * b / c
     M[7, 1] = a * b / cc
     M[8, 1] = b * b / cc
@@ -88,7 +87,8 @@ def _system(Z, a, b, x0, y0, f, M):
     M[6, 2] = -(v / c)
     M[7, 2] = -(a / cc)
     M[8, 2] = -(b / cc)
-    # g1 = (g1x, g1y, g1z), then g2: the gradients of the velocity along the surface
+    # g1 = (g1x, g1y, g1z), then g2: the gradients of the velocity along the surface; the
+    # rows 4, 5 of g1y and g2y are the rows 2, 3 of g1x and g2x
     for j in range(3, 9):
         M[0, j] = 0.0
         M[1, j] = 0.0
@@ -103,8 +103,8 @@ def _system(Z, a, b, x0, y0, f, M):
     dc = b * Zx0f
     M[2, 4] = 0.0
     M[3, 4] = 0.0
-    M[4, 4] = f * dXdx / Z
-    M[5, 4] = f * dXdy / Z
+    M[4, 4] = M[2, 3]
+    M[5, 4] = M[3, 3]
     M[6, 4] = -(b * x0) / c - v * dc / c
     M[7, 4] = -b / c - a * dc / cc
     M[8, 4] = -(b * dc / cc)
@@ -127,8 +127,8 @@ def _system(Z, a, b, x0, y0, f, M):
     dc = (-a * Zx0f + Z) - c
     M[2, 7] = 0.0
     M[3, 7] = 0.0
-    M[4, 7] = f * dYdx / Z
-    M[5, 7] = f * dYdy / Z
+    M[4, 7] = M[2, 6]
+    M[5, 7] = M[3, 6]
     M[6, 7] = -(b * y0) / c - v * dc / c
     M[7, 7] = -(a * dc / cc)
     M[8, 7] = -b / c - b * dc / cc

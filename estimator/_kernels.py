@@ -20,7 +20,7 @@ from numba.extending import intrinsic
 
 __all__ = ["scan_volume", "camera_sums", "spatial_filter", "weighted_product",
            "Frames", "frames_of", "weighted_product_frames", "complex_multiply",
-           "complex_multiply_add"]
+           "complex_multiply_2d"]
 
 
 @njit(parallel=True, cache=True)
@@ -282,22 +282,34 @@ def complex_multiply(a, k, out):
 
 
 @njit(parallel=True, cache=True)
-def _cmadd_kernel(a, k, along_rows, m, out):
-    # as _cmul_kernel, then times m (1 or 2: exact) and added: estimator.spectral._cmadd
+def _cmul2_kernel(a, ky, kx, m, add, out):
+    # (a ky) kx, each complex product as _cmul_kernel's, times m, stored or added:
+    # estimator.spectral._cmul2
     for y in prange(a.shape[0]):
+        w = ky[y]
         for x in range(a.shape[1]):
             v = a[y, x]
-            w = k[y] if along_rows else k[x]
-            re = (v.real * w.real - v.imag * w.imag) * m
-            im = (v.imag * w.real + v.real * w.imag) * m
-            out[y, x] = complex(out[y, x].real + re, out[y, x].imag + im)
+            r1 = v.real * w.real - v.imag * w.imag
+            i1 = v.imag * w.real + v.real * w.imag
+            u = kx[x]
+            re = (r1 * u.real - i1 * u.imag) * m
+            im = (i1 * u.real + r1 * u.imag) * m
+            if add:
+                out[y, x] = complex(out[y, x].real + re, out[y, x].imag + im)
+            else:
+                out[y, x] = complex(re, im)
 
 
-def complex_multiply_add(a, k, m, out):
-    """``out += m (a * k)``, shapes as :func:`complex_multiply`, rounded as
-    :func:`estimator.spectral._cmadd`."""
-    along_rows = k.shape[1] == 1 and k.shape[0] == a.shape[0]
-    _cmadd_kernel(a, np.ascontiguousarray(k.ravel()), along_rows, float(m), out)
+def complex_multiply_2d(a, ky, kx, m, out=None):
+    """``m ((a * ky) * kx)`` for a complex (rows, cols) ``a``, ``ky`` (rows,) along its
+    rows and ``kx`` (cols,) along its columns: into a new array where ``out`` is None,
+    else added to ``out``; rounded as :func:`estimator.spectral._cmul2` (the same bits
+    on every CPU: no fused multiply-adds)."""
+    add = out is not None
+    if out is None:
+        out = np.empty(a.shape, dtype=complex)
+    _cmul2_kernel(a, np.ascontiguousarray(ky), np.ascontiguousarray(kx), float(m), add,
+                  out)
     return out
 
 

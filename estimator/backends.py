@@ -265,7 +265,7 @@ class NumbaBackend(Backend):
                                            cols=plan.cols, fft="scipy", workers=self.threads,
                                            product=product,
                                            cmul=self._kernels.complex_multiply,
-                                           cmadd=self._kernels.complex_multiply_add,
+                                           cmul2=self._kernels.complex_multiply_2d,
                                            combine=plan.combine)
         return PackedTensor(planes.reshape(planes.shape[0], -1), idx,
                             plan.combine[0] if plan.combine else plan.rows)

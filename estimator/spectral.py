@@ -22,7 +22,7 @@ __all__ = ["structure_tensor_fft"]
 
 def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), *,
                          fft: str = "scipy", workers: int | None = None, product=None,
-                         cmul=None, cmadd=None, combine=None):
+                         cmul=None, cmul2=None, combine=None):
     """Packed structure tensor of a band via FFT.
 
     Parameters and meaning as :func:`estimator.tensor.structure_tensor`, plus
@@ -46,17 +46,21 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
         ``cmul(a, k, out)``: the spectrum ``a`` times a kernel ``k`` broadcast along one
         axis, into ``out``, rounded as :func:`_cmul` (its default); the numba backend
         passes its parallel kernel (:func:`estimator._kernels.complex_multiply`).
-    cmadd : callable, optional
-        ``cmadd(a, k, m, out)``: ``out += m (a * k)`` rounded as :func:`_cmadd` (its
-        default); the numba backend passes :func:`estimator._kernels.complex_multiply_add`.
+    cmul2 : callable, optional
+        ``cmul2(a, ky, kx, m, out)``: ``m ((a * ky) * kx)`` with ``ky`` along the rows
+        and ``kx`` along the columns, into a new array (``out`` None) or added to
+        ``out``, rounded as :func:`_cmul2` (its default); the numba backend passes
+        :func:`estimator._kernels.complex_multiply_2d`.
     combine : tuple of (tuple of str, list of list of int), optional
         ``(out, terms)``: the tensor wanted is over the rows ``out``, row ``a`` of which
         is the sum of the rows ``terms[a]`` of ``rows`` (the zoom-blur correction:
         :func:`estimator.tensor.zoom_terms`).  Each wanted entry is then the sum of its
-        terms' spectra, transformed back once, instead of every term transformed back
-        and summed afterwards (:func:`estimator.tensor.zoom_corrected`): the same sums
-        to roundoff, with fewer inverse transforms (full model: 117 x-inverses a band
-        instead of 251; with affine motion 195 instead of 429).
+        terms' 2-D spectra (each times its y- and x-kernel), transformed back once in
+        y and once in x, instead of every term transformed back and summed afterwards
+        (:func:`estimator.tensor.zoom_corrected`): the same sums to roundoff, with
+        fewer inverse transforms: with affine motion 195 x-inverses a band instead of
+        429, and 195 y-inverses instead of 303 (one per term's product and y-moment);
+        full model 117 x-inverses instead of 251, 117 y-inverses instead of 179.
 
     Returns
     -------
@@ -70,7 +74,7 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
         where given).
     """
     cmul = cmul or _cmul
-    cmadd = cmadd or _cmadd
+    cmul2 = cmul2 or _cmul2
     F, h, W = next(iter(signals.values())).shape
     R = kernels.shape[1] // 2
     wt = np.full(F, 1.0 / F)
@@ -172,34 +176,31 @@ def structure_tensor_fft(signals, tvals, rows, kernels, halo, cols=slice(None), 
                 FP = sfft.fft(sfft.rfft(prod, axis=1, **kw), axis=0, **kw, **over)
             else:
                 FP = sfft.rfft2(prod, s=shape, **kw)
-            # The kernel is separable, so the inverse is too: the y-inverse once per
-            # y-moment, then the x-inverse (complex to real) per (x, y) moment pair, on the
-            # kept rows only.
+            # The kernel is separable, so the inverse is too: for a plane of one term the
+            # y-inverse once per y-moment (shared by the planes of this product), then the
+            # x-inverse (complex to real) per (x, y) moment pair, on the kept rows only; a
+            # summed plane adds its terms in the 2-D spectrum, each times both kernels, and
+            # is transformed back once (fewer y-inverses than one per term's y-moment:
+            # the 2-D products cost about as much as the 1-D ones after the y-inverse)
             ypass = {}
             for px, py in sorted({(px, py) for *_, px, py in entries}):
-                if py not in ypass:
-                    buf = ybufs.setdefault(py, np.empty_like(FP))
-                    # scipy.fft transforms complex input in place with overwrite_x
-                    ypass[py] = sfft.ifft(cmul(FP, KY[py][:, None], buf), axis=0,
-                                          **kw, **over)
                 for e, mult, summed in goes.get(((pair, tpow), px, py), ()):
-                    if summed and acc[e] is None:
-                        # the first term written, not added to zeros: allocating zeroed
-                        # arrays cost 0.08 of 1.2 s at 512^2 (the same bits: 0 + x = x,
-                        # up to the sign of an exact zero)
-                        acc[e] = cmul(ypass[py][keep_rows], KX[px][None, :],
-                                      np.empty_like(xbuf))
-                        if mult != 1:
-                            acc[e].view(np.float64)[...] *= float(mult)
-                    elif summed:
-                        cmadd(ypass[py][keep_rows], KX[px][None, :], float(mult), acc[e])
-                    if summed:
-                        left[e] -= 1
-                        if not left[e]:
-                            to_plane(acc[e], e)
-                            acc[e] = None
-                    else:
+                    if not summed:
+                        if py not in ypass:
+                            buf = ybufs.setdefault(py, np.empty_like(FP))
+                            # scipy.fft transforms complex input in place with overwrite_x
+                            ypass[py] = sfft.ifft(cmul(FP, KY[py][:, None], buf), axis=0,
+                                                  **kw, **over)
                         to_plane(cmul(ypass[py][keep_rows], KX[px][None, :], xbuf), e)
+                        continue
+                    # the first term written, not added to zeros: allocating zeroed arrays
+                    # cost 0.08 of 1.2 s at 512^2 (the same bits: 0 + x = x, up to the
+                    # sign of an exact zero)
+                    acc[e] = cmul2(FP, KY[py], KX[px], float(mult), acc[e])
+                    left[e] -= 1
+                    if not left[e]:
+                        to_plane(sfft.ifft(acc[e], axis=0, **kw, **over)[keep_rows], e)
+                        acc[e] = None
     if any(left.values()):
         raise AssertionError("a summed plane of the tensor missed terms")
     return Jp, idx
@@ -216,9 +217,9 @@ def _batches(order: list, summed: list) -> list[list]:
     planes.  Within that, groups are taken greedily: next, the one that opens the fewest
     planes not yet open net of those it completes (ties by pair, then by ``order``), so
     that a plane's spectrum is let go soon after it is opened (under affine motion at
-    most 24 of the 153 summed planes are open at once, 1.8 MB each at 512^2, against 110
-    in the batches before this order and 70 with ``order``'s products one at a time; 90
-    passes instead of 82).  A group then joins an earlier
+    most 24 of the 153 summed planes are open at once, each a 2-D half-spectrum of 2.1 MB
+    at 512^2, against 110 in the batches before this order and 70 with ``order``'s
+    products one at a time; 90 passes instead of 82).  A group then joins an earlier
     batch of its pair where every group that must come before it is done by then.
     """
     rank = {g: i for i, g in enumerate(order)}
@@ -279,12 +280,18 @@ def _cmul(a: np.ndarray, k: np.ndarray, out: np.ndarray) -> np.ndarray:
     return out
 
 
-def _cmadd(a: np.ndarray, k: np.ndarray, m: float, out: np.ndarray) -> np.ndarray:
-    """``out += m (a * k)`` for complex arrays, each part rounded as :func:`_cmul`'s,
-    then times ``m`` (1 or 2 here: exact), then added."""
-    prod = _cmul(a, k, np.empty(a.shape, dtype=complex))
+def _cmul2(a: np.ndarray, ky: np.ndarray, kx: np.ndarray, m: float,
+           out: np.ndarray | None) -> np.ndarray:
+    """``m ((a * ky) * kx)`` for a complex (rows, cols) ``a``, ``ky`` (rows,) along the
+    rows and ``kx`` (cols,) along the columns, each product rounded as :func:`_cmul`'s,
+    then times ``m`` (1 or 2 here: exact): a new array where ``out`` is None, else
+    added to ``out``."""
+    t = _cmul(a, ky[:, None], np.empty(a.shape, dtype=complex))
+    prod = _cmul(t, kx[None, :], np.empty(a.shape, dtype=complex))
     if m != 1.0:
-        prod.view(np.float64)[...] *= m          # both parts times a real: no complex multiply
+        prod.view(np.float64)[...] *= m
+    if out is None:
+        return prod
     out += prod
     return out
 

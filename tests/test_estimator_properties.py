@@ -288,7 +288,7 @@ def test_the_products_in_batches_are_the_products_one_by_one(monkeypatch):
     both motion models (with the zoom-blur correction's summed planes, whose terms must
     be added in the former order), and the passes are fewer than the products.
 
-    The batches also keep few summed planes open (each a spectrum of 1.8 MB at 512^2,
+    The batches also keep few summed planes open (each a 2-D half-spectrum of 2.1 MB at 512^2,
     let go after its last term): the groups and summed planes structure_tensor_fft hands
     to _batches, and the batches it gets back, replayed as it consumes them, leave at
     most a quarter of the summed planes open at once (the affine model: 24 of 153; the
@@ -310,7 +310,7 @@ def test_the_products_in_batches_are_the_products_one_by_one(monkeypatch):
         sig = {n: rng.standard_normal((F, h, W)) for n in sig}
         run = dict(cols=slice(halo, W - halo), fft="scipy", workers=1,
                    product=_kernels.weighted_product, cmul=_kernels.complex_multiply,
-                   cmadd=_kernels.complex_multiply_add, combine=zoom_terms(ext, rows))
+                   cmul2=_kernels.complex_multiply_2d, combine=zoom_terms(ext, rows))
         seen = []
         monkeypatch.setattr(spectral, "_batches", lambda order, summed: seen.append(
             (list(order), list(summed), batches(order, summed))) or seen[-1][2])

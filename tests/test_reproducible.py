@@ -144,8 +144,8 @@ def test_the_spectra_are_multiplied_the_same_way_on_both_paths():
     products, two sums, nothing fused): the two paths give the same tensor bits."""
     import numpy as np
 
-    from gridflow.estimator._kernels import complex_multiply, complex_multiply_add
-    from gridflow.estimator.spectral import _cmadd, _cmul
+    from gridflow.estimator._kernels import complex_multiply, complex_multiply_2d
+    from gridflow.estimator.spectral import _cmul, _cmul2
 
     rng = np.random.default_rng(3)
     a = rng.standard_normal((40, 33)) + 1j * rng.standard_normal((40, 33))
@@ -155,10 +155,18 @@ def test_the_spectra_are_multiplied_the_same_way_on_both_paths():
         for f in (_cmul, complex_multiply):
             got = f(a, k, np.empty_like(a))
             assert np.array_equal(got.view(float), want.view(float)), f.__name__
-        # and the multiply-add of the zoom-blur correction's spectral sums
-        start = rng.standard_normal(a.shape) + 1j * rng.standard_normal(a.shape)
-        for m in (1.0, 2.0):
-            want2 = start + (want.real * m + 1j * (want.imag * m))
-            for f in (_cmadd, complex_multiply_add):
-                got = f(a, k, m, start.copy())
-                assert np.array_equal(got.view(float), want2.view(float)), (f.__name__, m)
+    # and the 2-D products of the zoom-blur correction's spectral sums, stored or added
+    ky = rng.standard_normal(40) + 1j * rng.standard_normal(40)
+    kx = rng.standard_normal(33) + 1j * rng.standard_normal(33)
+    t = (a.real * ky.real[:, None] - a.imag * ky.imag[:, None]) + 1j * (
+        a.imag * ky.real[:, None] + a.real * ky.imag[:, None])
+    tk = (t.real * kx.real - t.imag * kx.imag) + 1j * (t.imag * kx.real + t.real * kx.imag)
+    start = rng.standard_normal(a.shape) + 1j * rng.standard_normal(a.shape)
+    for m in (1.0, 2.0):
+        want2 = tk.real * m + 1j * (tk.imag * m)
+        for f in (_cmul2, complex_multiply_2d):
+            got = f(a, ky, kx, m, None)
+            assert np.array_equal(got.view(float), want2.view(float)), (f.__name__, m)
+            got = f(a, ky, kx, m, start.copy())
+            assert np.array_equal(got.view(float), (start + want2).view(float)), (
+                f.__name__, m)

@@ -90,6 +90,60 @@ def test_local_linear_fit_is_exact_for_affine_maps_under_holes():
     assert np.isnan(fit[0][:, 60:]).all() and np.isfinite(fit[0][:, :38]).all()
 
 
+@pytest.mark.parametrize("origin", [(0, 0), (255, 255), (3, 7), (149, 258)])
+def test_the_block_sums_are_the_padded_blocks_sums(origin):
+    """The support's sums over blocks (:class:`estimator.pooling._Support`: each block's
+    rows, then its columns, added as strided slices) against an independent reading: the
+    image padded with zeros so that blocks start at ``origin``, cut into blocks, each
+    summed with ``math.fsum`` (correctly rounded).  With ``m = max |a|``: each column of
+    a block is 8 rows added in turn, 7 roundings of at most 2^-53 * 8 m; the 8 column
+    sums then added in turn, 7 roundings of at most 2^-53 * 64 m: in all at most
+    ``(8 * 7 * 8 + 7 * 64) m 2^-53 = 896 m 2^-53``, and half an ulp of the exact sum for
+    fsum's own rounding.  Several maps at once give each map's sums bit for bit."""
+    import math
+
+    from gridflow.estimator.pooling import _Support
+
+    rng = np.random.default_rng(1)
+    a = rng.standard_normal((2, 300, 517))
+    sup = _Support(a.shape[1:], 96.0, origin)
+    f = sup.f
+    assert f == 8
+    (t, b), (le, r) = sup.pad
+    padded = np.pad(a[0], ((t, b), (le, r)))
+    ny, nx = padded.shape[0] // f, padded.shape[1] // f
+    want = np.array([[math.fsum(padded[i * f:(i + 1) * f, j * f:(j + 1) * f].ravel())
+                      for j in range(nx)] for i in range(ny)])
+    got = sup._block_sums(a)
+    assert got.shape == (2, ny, nx)
+    m = np.abs(a[0]).max()
+    assert np.abs(got[0] - want).max() <= (896 * m + np.abs(want).max()) * 2.0 ** -53
+    assert np.array_equal(sup._block_sums(a[1]), got[1])
+    assert np.array_equal(sup.sums(a)[1], sup.sums(a[1]))
+
+
+def test_the_bell_passes_are_scipys_along_each_axis():
+    """The bell's box passes down the columns, taken along the rows of a transposed copy,
+    are bit for bit ``scipy.ndimage.uniform_filter1d`` along axis 0 (the same running sums
+    in the same order), for one map and for a stack."""
+    from scipy import ndimage
+
+    from gridflow.estimator.pooling import _box_width, _smooth
+
+    rng = np.random.default_rng(2)
+    a = rng.standard_normal((3, 70, 90))
+    for sigma in (5.0, 16.0):
+        w = _box_width(sigma)
+        want = []
+        for m in a:
+            for axis in (0, 1):
+                for _ in range(3):
+                    m = ndimage.uniform_filter1d(m, w, axis=axis, mode="constant", cval=0.0)
+            want.append(m)
+        assert np.array_equal(_smooth(a, sigma), np.stack(want))
+        assert np.array_equal(_smooth(a[1], sigma), want[1])
+
+
 def test_pool_rates_keeps_the_outliers_own_values_and_averages_the_rest():
     """Noise around an affine field: pooled to the field within the noise over the
     support's samples; a step of 20 sd in a 6 x 6 patch: those pixels keep their own

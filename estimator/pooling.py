@@ -95,10 +95,17 @@ def bell(a: np.ndarray, sigma: float) -> np.ndarray:
     return _smooth(a, sigma)
 
 
-@lru_cache(maxsize=8)
 def bell_square_sum(sigma: float) -> float:
     """``sum K^2`` of the 2-D bell of :func:`bell` (``1 / (4 pi sigma^2)`` for a
     Gaussian): a white noise's variance falls by this factor under it."""
+    return _bell_square_sum(float(sigma))
+
+
+@lru_cache(maxsize=8)
+def _bell_square_sum(sigma: float) -> float:
+    # computed once per sigma (a few hundred exactly rounded sums: 2 ms a step); sigma a
+    # Python float, so that a float32 and a float64 of equal value (whose box widths can
+    # differ) do not share an entry
     w = _box_width(sigma)
     # the box's repeated convolution in Python floats, each sum exactly rounded (numpy's
     # convolve goes through BLAS, whose sums round by the machine's CPU)

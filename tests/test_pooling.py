@@ -120,6 +120,16 @@ def test_the_block_sums_are_the_padded_blocks_sums(origin):
     assert np.abs(got[0] - want).max() <= (896 * m + np.abs(want).max()) * 2.0 ** -53
     assert np.array_equal(sup._block_sums(a[1]), got[1])
     assert np.array_equal(sup.sums(a)[1], sup.sums(a[1]))
+    # the sums are of the bell, which sums to 1: a map of ones far from the image's edges
+    # (2-px blocks at sigma 24: the bell reaches 36 blocks, 72 px) gives 1, whatever the
+    # block size (the blocks' sums divided by their f^2 pixels; divided by f it would
+    # be 2).  Each of the 6 box passes is a running sum along a line of at most n = 259
+    # nodes, at most 2 n roundings of numbers <= 1: the error is below 6 * 2 n 2^-53
+    sup2 = _Support(a.shape[1:], 24.0, origin)
+    assert sup2.f == 2
+    ones = sup2.sums(np.ones(a.shape[1:]))
+    n = max(ones.shape)
+    assert np.abs(ones[40:-40, 40:-40] - 1.0).max() <= 6 * 2 * n * 2.0 ** -53
 
 
 def test_the_bell_passes_are_scipys_along_each_axis():

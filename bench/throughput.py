@@ -174,7 +174,8 @@ def stages(size: int, repeat: int) -> list[dict]:
     estimate(sv.volume[..., :160, :160], sv.focal_length, sv.camera_spacing, model="full")
     spent = {}
     cls = backends.NumbaBackend
-    saved = {name: cls.__dict__.get(name) for name in ("signals", "tensor", "null_space")}
+    saved = {name: cls.__dict__.get(name)
+             for name in ("signals", "tensor", "null_space", "null_space_parts")}
 
     def timed(name, fn):
         def wrapper(*args, **kw):
@@ -185,6 +186,18 @@ def stages(size: int, repeat: int) -> list[dict]:
                 spent[name] = spent.get(name, 0.0) + time.perf_counter() - t0
         return wrapper
 
+    def timed_parts(name, fn):
+        # a generator: the time inside each of its steps, not between them
+        def wrapper(*args, **kw):
+            parts = timed(name, fn)(*args, **kw)
+            while True:
+                try:
+                    part = timed(name, next)(parts)
+                except StopIteration:
+                    return
+                yield part
+        return wrapper
+
     rows = []
     init = cls.__init__
 
@@ -193,7 +206,8 @@ def stages(size: int, repeat: int) -> list[dict]:
         self.solve_affine = timed("affine solve", self.solve_affine)
     try:
         for name in saved:
-            setattr(cls, name, timed(name, getattr(cls, name)))
+            wrap = timed_parts if name == "null_space_parts" else timed
+            setattr(cls, name, wrap(name.replace("_parts", ""), getattr(cls, name)))
         cls.__init__ = patched_init
         for motion in (TRANSLATION.name, AFFINE.name):
             for run in range(repeat):

@@ -116,6 +116,11 @@ class Backend:
         :class:`~estimator.tensor.PackedTensor`.
     ``null_space(J, model)``
         The model's :class:`~estimator.nullspace.NullSpace` from its sub-block of J.
+    ``null_space_parts(J, model, stops)``
+        The same, part by part (a generator): the NullSpace of pixels ``[0, stops[0])``,
+        then ``[stops[0], stops[1])``, ..., each the same bits as those pixels of
+        ``null_space``'s; the numba backend solves the pixels as the parts reach them,
+        so that a band's outputs are not all held at once.
     ``solve_affine(obs, Z, Zx, Zy, x0, y0, f, var_obs=None, sensitivity=False)``
         The affine model's per-pixel 9 x 9 systems
         (:func:`estimator.disentangle.solve_affine`).
@@ -154,6 +159,13 @@ class Backend:
 
     def null_space(self, J, model: Model) -> NullSpace:
         return null_space(J.block(model.rows), model)
+
+    def null_space_parts(self, J, model: Model, stops):
+        ns = self.null_space(J, model)
+        a = 0
+        for b in stops:
+            yield NullSpace(*(x[a:b] for x in ns[:4]), ns.fallbacks)
+            a = b
 
 
 class _DenseBackend(Backend):
@@ -272,6 +284,10 @@ class NumbaBackend(Backend):
 
     def null_space(self, J: PackedTensor, model: Model) -> NullSpace:
         return self._solver.null_space_packed(J.planes, J.sub_index(model.rows), model)
+
+    def null_space_parts(self, J: PackedTensor, model: Model, stops):
+        return self._solver.null_space_parts(J.planes, J.sub_index(model.rows), model,
+                                             stops, ahead=max(16, 8 * self.threads))
 
 
 BACKENDS = {b.name: b for b in (ReferenceBackend, GroupedBackend, FFTBackend, NumbaBackend)}

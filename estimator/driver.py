@@ -798,15 +798,21 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
         yy, xx = np.meshgrid(np.arange(r0, r1), cols, indexing="ij")
         x0 = (xx - plan.cx).ravel().astype(float)
         y0 = (yy - plan.cy).ravel().astype(float)
+        starts = range(0, r1 - r0, step)
         for m in models:
-            P, g, err, valid = backend.null_space(J, mdl[m])[:4]
-            for a in range(0, r1 - r0, step):
+            # the null space solved as the disentangling reaches its rows: only a few
+            # rows' parameter vectors are held at once (under the affine model at 512^2
+            # a whole band's are 134 MB; the same bits: estimator._solver.null_space_parts)
+            parts = backend.null_space_parts(J, mdl[m], [min(a + step, r1 - r0) * cols.size
+                                                         for a in starts])
+            for a, ns in zip(starts, parts):
                 b = min(a + step, r1 - r0)
                 px = slice(a * cols.size, b * cols.size)
+                P, g, err, valid = ns[:4]
                 keep = {} if m in pool else None
-                res = disentangle(P[px], g[px], mdl[m], x0[px], y0[px], plan.focal_length,
+                res = disentangle(P, g, mdl[m], x0[px], y0[px], plan.focal_length,
                                   plan.spacing, slant_correction=s.slant_correction,
-                                  combine=s.combine, residual=err[px] / n_px[px],
+                                  combine=s.combine, residual=err / n_px[px],
                                   pooling_inputs=keep, solver=backend.solve_affine)
                 if keep:
                     pool[m][:, r0 + a:r0 + b, halo:W - halo] = np.concatenate(
@@ -816,12 +822,12 @@ def estimate_models(volume: np.ndarray, focal_length: float, camera_spacing, *,
                 # square).  For |V| beyond ~1e154 the true value is not representable:
                 # it becomes inf.
                 with np.errstate(over="ignore", under="ignore"):
-                    res["model_error"] = (np.where(valid[px], err[px], np.nan) * inv) * inv
+                    res["model_error"] = (np.where(valid, err, np.nan) * inv) * inv
                 for name, val in res.items():
                     out[m][name][r0 + a:r0 + b, halo:W - halo] = val.reshape(b - a, cols.size)
         # the band's tensor and null spaces are done with: not held through the next
         # band's signals or the pooled rates (the affine model's tensor at 512^2: 313 MB)
-        J = P = g = err = valid = res = None
+        J = P = g = err = valid = ns = parts = res = None
     if pool:
         Sy, Sx = vol.shape[1:3]
         ref_view = frames[plan.k_ref]["view"] if framed else vol[plan.k_ref, Sy // 2, Sx // 2]

@@ -98,3 +98,36 @@ def test_a_texture_without_the_null_space_is_invalid():
     index[iu] = index[iu[1], iu[0]] = np.arange(iu[0].size)
     fast = null_space_packed(np.ascontiguousarray(J[:, iu[0], iu[1]].T), index, model)
     assert not fast.valid.any() and np.isnan(fast.P).all()
+
+
+def test_the_null_space_part_by_part_is_the_same_bits():
+    """``null_space_parts`` solves the chunks of the pixels as its parts reach them, a
+    few chunks a call; every field of every part is the same bits as the same pixels of
+    ``null_space_packed``'s, over parts that end inside chunks, span several, take one
+    pixel, and over a run of pixels without the null space (NaN, and the lanes skipped
+    after them), so that the chunks' warm starts and their outputs' places are checked.
+    """
+    from gridflow.estimator._solver import null_space_packed, null_space_parts
+
+    model, J, _, free = _planted(n_pixels=300)
+    J = J.copy()
+    J[40:120, free[0], :] = 0.0
+    J[40:120, :, free[0]] = 0.0
+    n = model.n
+    iu = np.triu_indices(n)
+    planes = np.ascontiguousarray(J[:, iu[0], iu[1]].T)
+    index = np.empty((n, n), dtype=np.int64)
+    index[iu] = index[iu[1], iu[0]] = np.arange(iu[0].size)
+    whole = null_space_packed(planes, index, model)
+    assert whole.valid[:40].all() and not whole.valid[40:120].any()
+    stops = [5, 70, 71, 200, 233, 300]
+    for ahead in (1, 2, 64):
+        a = 0
+        parts = list(null_space_parts(planes, index, model, stops, ahead=ahead))
+        assert len(parts) == len(stops)
+        for b, part in zip(stops, parts):
+            for got, want in zip(part[:4], whole[:4]):
+                assert got.shape == want[a:b].shape
+                assert np.array_equal(got, want[a:b], equal_nan=True)
+            a = b
+    assert sum(p.fallbacks[0] for p in parts) == whole.fallbacks[0] > 0

@@ -37,6 +37,15 @@ def _planted(n_pixels=300, seed=0):
     return model, J, P, free
 
 
+def _packed(J, model):
+    """J (N, n, n) as the packed planes (E, N) and their index (n, n) of the fast solver."""
+    n = model.n
+    iu = np.triu_indices(n)
+    index = np.empty((n, n), dtype=np.int64)
+    index[iu] = index[iu[1], iu[0]] = np.arange(iu[0].size)
+    return np.ascontiguousarray(J[:, iu[0], iu[1]].T), index
+
+
 def _g_by_definition(J, model, free):
     tr = np.trace(J, axis1=1, axis2=2)
     Jq = J[:, free][:, :, free] + (RIDGE * tr)[:, None, None] * np.eye(len(free))
@@ -66,12 +75,7 @@ def test_fast_solver_finds_the_planted_solution():
     from gridflow.estimator._solver import null_space_packed
 
     model, J, P_true, free = _planted()
-    n = model.n
-    iu = np.triu_indices(n)
-    planes = np.ascontiguousarray(J[:, iu[0], iu[1]].T)
-    index = np.empty((n, n), dtype=np.int64)
-    index[iu] = index[iu[1], iu[0]] = np.arange(iu[0].size)
-    ns = null_space_packed(planes, index, model)
+    ns = null_space_packed(*_packed(J, model), model)
     assert ns.valid.all()
     np.testing.assert_allclose(ns.P, P_true, rtol=0, atol=2e-14)
     rows = [model.index(r) for r in COMBINED_ROWS if r in model.rows]
@@ -92,11 +96,7 @@ def test_a_texture_without_the_null_space_is_invalid():
     J[:, :, free[0]] = 0.0                   # a fourth null direction: e_free0
     ns = null_space(J, model)
     assert not ns.valid.any() and np.isnan(ns.P).all()
-    n = model.n
-    iu = np.triu_indices(n)
-    index = np.empty((n, n), dtype=np.int64)
-    index[iu] = index[iu[1], iu[0]] = np.arange(iu[0].size)
-    fast = null_space_packed(np.ascontiguousarray(J[:, iu[0], iu[1]].T), index, model)
+    fast = null_space_packed(*_packed(J, model), model)
     assert not fast.valid.any() and np.isnan(fast.P).all()
 
 
@@ -113,11 +113,7 @@ def test_the_null_space_part_by_part_is_the_same_bits():
     J = J.copy()
     J[40:120, free[0], :] = 0.0
     J[40:120, :, free[0]] = 0.0
-    n = model.n
-    iu = np.triu_indices(n)
-    planes = np.ascontiguousarray(J[:, iu[0], iu[1]].T)
-    index = np.empty((n, n), dtype=np.int64)
-    index[iu] = index[iu[1], iu[0]] = np.arange(iu[0].size)
+    planes, index = _packed(J, model)
     whole = null_space_packed(planes, index, model)
     assert whole.valid[:40].all() and not whole.valid[40:120].any()
     stops = [5, 70, 71, 200, 233, 300]

@@ -8,7 +8,8 @@ by more than 1 px per view outside a 3-px band around the depth edges.  Per scen
 surface this counts those pixels (outside the HCI benchmark's 15-px border as well) for
 the default of :func:`gridflow.estimator.lightfield.estimate_refocused` and for it
 without the coarse disparity of open regions (``smooth=False``), with the largest
-error; on the periodic grid also for ``select="coarse"``.  Scenes: the smooth wall of
+error, and for the EPI segments (``select="epi"``, not the default); on the periodic
+grid also for ``select="coarse"``.  Scenes: the smooth wall of
 ``bench/lightfield_study.py`` (256^2, noise seeds 0-3, and 512^2, seed 0), the periodic
 grid (aliasing), and the wall with a thin bar in front of it (what the coarse disparity
 costs: the bar's pixels off by more than 0.5 px, all of them counted).  Every scene has
@@ -72,7 +73,8 @@ def outliers(quick: bool = False, progress=print) -> list[dict]:
         scored = scored_mask(truth)
         label, value, rest = named
         surfaces = {label: scored & (truth == value), rest: scored & (truth != value)}
-        variants = [("default", {}), ("smooth=False", {"smooth": False})]
+        variants = [("default", {}), ("smooth=False", {"smooth": False}),
+                    ("select=epi", {"select": "epi"})]
         if also_coarse:
             variants.append(("select=coarse", {"select": "coarse"}))
         for variant, kw in variants:
@@ -104,7 +106,8 @@ def bars(progress=print) -> list[dict]:
         y, x = np.indices(truth.shape)
         on_bar = (y >= y0) & (y < y1) & (x >= x0) & (x < x1)
         name = f"{x1 - x0} px at {d_bar:+g} px per view, contrast {contrast:g}"
-        for variant, kw in (("default", {}), ("smooth=False", {"smooth": False})):
+        for variant, kw in (("default", {}), ("smooth=False", {"smooth": False}),
+                            ("select=epi", {"select": "epi"})):
             disp = estimate_refocused(views, tuple(range(-3, 4)), **kw)["disparity"]
             rows.append({"bar": name, "variant": variant, "pixels": int(on_bar.sum()),
                          "off_half_px": int((np.abs(disp - d_bar)[on_bar] > 0.5).sum())})

@@ -37,8 +37,17 @@ pixels exactly, with no interpolation) and chooses, per pixel, one shear's estim
     sub-grid has views in which the gap is covered, keep their own disparity.  This is
     the light-field counterpart of estimating on horizontal and vertical epipolar-plane
     images and keeping the more confident (Wanner and Goldluecke).
+``select="epi"``
+    As ``"lines"``, but each segment of views estimated on its epipolar-plane images
+    themselves (:func:`_epi_line`): a row of views is a stack of EPIs, one per image
+    row, and its disparity is the total-least-squares fit of ``d I_x = I_s`` (``s`` the
+    camera along the row) over a window along x alone, with no filtering across the
+    rows; the windows are shifted along the line only.  The 5 x 5 window and the
+    y-prefilter of the estimator mix every structure thinner than about 9 px with what
+    lies next to it; an EPI row does not.  ``bench/README.md`` (*Light fields*)
+    measures it beside ``"lines"``.
 
-With ``"lines"`` and ``"occlusion"``, a region whose shear the data leave open (smooth or
+With ``"lines"``, ``"epi"`` and ``"occlusion"``, a region whose shear the data leave open (smooth or
 texture-poor: every shear fits about as well, or a shear two or more steps from the best
 fits as well as it) takes the shear nearest the confirmed coarse disparity of the
 decimated light field (``smooth``; :func:`_prior_cost`).
@@ -62,10 +71,11 @@ __all__ = ["shear", "estimate_refocused", "REFOCUS_TUNING", "SELECT_DEFAULTS", "
 # (sigma px, window taps) of each shear choice when not given: the occlusion-aware choices
 # work with small windows (their shifted windows and sub-grids handle the edges), the
 # coarse one keeps the estimator's usual light-field window
-SELECT_DEFAULTS = {"lines": (1.0, 5), "occlusion": (1.0, 5), "coarse": (2.0, 9)}
+SELECT_DEFAULTS = {"lines": (1.0, 5), "occlusion": (1.0, 5), "coarse": (2.0, 9),
+                   "epi": (1.5, 9)}
 # the ways to choose a pixel's shear, the default first: the 1-D sub-grids handle
 # occlusions and thin structures, where most light-field scenes lose their depth
-SELECTS = ("lines", "occlusion", "coarse")
+SELECTS = ("lines", "occlusion", "coarse", "epi")
 
 
 def stated_shears(disp_range) -> range | None:
@@ -521,28 +531,33 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     sigma, window, filters
         Estimator settings (:class:`estimator.EstimatorSettings`); defaults
         ``SELECT_DEFAULTS[select]``: 1 px and 5 taps for ``"lines"`` and
-        ``"occlusion"``, 2 px and 9 taps for ``"coarse"``.
-    select : {"lines", "occlusion", "coarse"}
+        ``"occlusion"``, 2 px and 9 taps for ``"coarse"``; for ``"epi"`` the window
+        along the line, 1.5 px and 9 taps (its data rows are not filtered across it).
+    select : {"lines", "occlusion", "coarse", "epi"}
         How each pixel's estimate is chosen among the shears (module docstring):
         ``"lines"`` (1-D camera sub-grids along the centre row and column, shifted
         windows and a guided cost aggregation; for scenes with occlusions and thin
         structures), ``"occlusion"`` (the same with square sub-grids) or ``"coarse"``
         (the shear nearest to a coarse disparity; meant for fine periodic texture,
         where a wrong shear can alias: ``bench/README.md`` measures it worse than
-        ``"lines"`` on a periodic grid with little else).
+        ``"lines"`` on a periodic grid with little else) or ``"epi"`` (as ``"lines"``,
+        each segment fitted on its epipolar-plane images: structures a few px thin;
+        ``bench/README.md`` measures it beside ``"lines"``).
     subgrid : int, optional
         ``"lines"`` and ``"occlusion"``: odd number of views across a camera sub-grid
         (square ones at the centre, edges and corners of the grid: nine of them on a
         9 x 9 grid, one on a 5 x 5; lines of that many views at the centre and both
         ends of the centre row and column); default 5, or the grid's size if smaller.
+        ``"epi"`` takes as many views as its camera filters have taps and refuses it.
         (The whole row and column, ``subgrid = n``, is faster and measured better on
         two of three scenes, worse between thin stripes: ``bench/README.md``, *Light
         fields*.)
     aggregate : int
-        ``"lines"`` and ``"occlusion"``: radius (px) of the guided filter that
+        ``"lines"``, ``"epi"`` and ``"occlusion"``: radius (px) of the guided filter that
         aggregates the costs.
     smooth : bool
-        ``"lines"`` and ``"occlusion"``: where the data leave a region's shear open
+        ``"lines"``, ``"epi"`` and ``"occlusion"``: where the data leave a region's shear
+        open
         (smooth or texture-poor: the best shear's aggregated cost within a factor of two
         of its median over the shears, or of the best of the shears two or more steps
         from it), choose by the confirmed coarse disparity of the
@@ -577,7 +592,8 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     Estimate
         Model ``bcc``; maps, each shape (H, W): ``disparity``; ``shear``: the shear used;
         ``model_error``: the model error of the estimate kept; ``confidence`` (larger is
-        better; threshold it to mask): with ``"lines"`` ``-log10`` of the product of
+        better; threshold it to mask): with ``"lines"`` and ``"epi"`` ``-log10`` of the
+        product of
         the disagreement (px per view) between the best estimates of the row's and of
         the column's sub-grids at the chosen shear and the model error relative to its
         median of its positive values (floors: 1e-6 px, ``AGREE_FLOOR``, and nine
@@ -598,6 +614,11 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     t = {**REFOCUS_TUNING, **tuning}
     v, shifts = _checked_views(views, shifts, select)
     n = v.shape[0]
+    if select == "epi":
+        if t["subgrid"] is not None:
+            raise InputError("subgrid: select='epi' takes segments of as many views as "
+                             "its camera filters have taps (5, or 3 on a 3 x 3 grid)")
+        t["subgrid"] = _epi_pair(filters, n).taps
     subgrid = min(5, n) if t["subgrid"] is None else t["subgrid"]
     if select != "coarse" and (subgrid % 2 == 0 or not 3 <= subgrid <= n):
         raise InputError(f"subgrid must be odd, at least 3 and at most the grid's {n}, "
@@ -612,7 +633,8 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         # beside the refocusing's 20 s on a 9 x 9 scene of 512^2
         prior = (lambda: _coarse_prior(v, filters)) if t["smooth"] else None
         out = _select_occlusion(v, lo, sigma, window, filters, subgrid, t["aggregate"],
-                                lines=select == "lines", progress=progress, prior=prior)
+                                lines=select in ("lines", "epi"), progress=progress,
+                                prior=prior, epi=select == "epi")
     maps, valid, filled = _finish(out, sigma, fill, median)
     settings = {"shears": list(shifts), "select": select, "sigma": sigma, "window": window,
                 "filters": filters, "fill": fill, "median": median,
@@ -761,10 +783,92 @@ def _subgrid_estimates(sv, subgrid, sigma, window, filters, lines):
         yield e["disparity"].T, e["model_error"].T, e.interior.T, (reach, 0)
 
 
+def _epi_pair(filters: str, n: int):
+    """The camera filter pair of an EPI segment: ``filters`` where the grid has as many
+    views as its taps, else ``"matched3"`` (as the estimator does on a short axis)."""
+    from .filters import get_filter_pair
+
+    pair = get_filter_pair(filters)
+    return pair if pair.taps <= n else get_filter_pair("matched3")
+
+
+def _epi_line(seg: np.ndarray, pair, sigma: float, window: int):
+    """Disparity of a segment of views along x from its epipolar-plane images.
+
+    A point of disparity ``d`` appears in view ``c`` of the segment at ``x - d (c -
+    cc)``, so ``I_s = d I_x`` (``s`` the camera index; brightness constancy, as the
+    ``bcc`` model).  ``I_x`` is the x-derivative of the camera-prefiltered views,
+    ``I_s`` the camera derivative prefiltered in x (the same pair on both axes: the
+    derivatives of one prefiltered signal, ``estimator.filters``), neither filtered in
+    y; the structure tensor ``[[Jxx, Jxs], [Jxs, Jss]]`` is their products summed over a
+    Gaussian window along x alone (an EPI, one image row), and ``d`` its total least
+    squares solution (the eigenvector of the smaller eigenvalue ``lam``, which is the
+    model error).
+
+    Parameters
+    ----------
+    seg : ndarray, shape (m, H, W)
+        ``m = pair.taps`` views along x (camera index increasing with x's shift sign as
+        in the HCI convention).
+    pair : FilterPair
+    sigma, window : float, int
+        The window along x: a Gaussian of ``sigma`` px, ``window`` taps.
+
+    Returns
+    -------
+    disparity, model_error, interior : ndarray, shape (H, W)
+        ``interior``: the pixels whose filters and window lie inside the image (in x).
+    """
+    from scipy.ndimage import correlate1d
+
+    p, dk = pair.prefilter, pair.derivative
+    cp = np.tensordot(p, seg, 1)
+    cd = np.tensordot(dk, seg, 1)
+    ix = correlate1d(cp, dk, axis=1, mode="nearest")
+    i_s = correlate1d(cd, p, axis=1, mode="nearest")
+    rw = int(window) // 2
+    g = gaussian_taps(float(sigma), rw)
+
+    def win(a):
+        return correlate1d(a, g, axis=1, mode="nearest")
+    jxx, jxs, jss = win(ix * ix), win(ix * i_s), win(i_s * i_s)
+    half = 0.5 * (jxx + jss)
+    root = np.sqrt(0.25 * (jxx - jss) ** 2 + jxs * jxs)
+    lam = half - root
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # the eigenvector of lam is (jxs, lam - jxx) ~ (d, -1); jxx - lam = root +
+        # (jxx - jss) / 2 >= 0, zero only where the window has no texture at all
+        d = jxs / (jxx - lam)
+    H, W = seg.shape[-2:]
+    m = pair.radius + rw
+    interior = np.zeros((H, W), dtype=bool)
+    interior[:, m:W - m] = True
+    return d, np.maximum(lam, 0.0), interior & np.isfinite(d)
+
+
+def _epi_estimates(sv, subgrid, sigma, window, filters, lines):
+    """As :func:`_subgrid_estimates` with ``lines=True``, each segment of ``subgrid``
+    views estimated on its EPIs (:func:`_epi_line`); a column as a row of the
+    transposed images."""
+    n = sv.shape[0]
+    cg = n // 2
+    h = subgrid // 2
+    pair = _epi_pair(filters, n)
+    for c in sorted({h, cg, n - 1 - h}):
+        reach = abs(c - cg) + h
+        d, err, inner = _epi_line(sv[cg, c - h:c + h + 1], pair, sigma, window)
+        yield d, err, inner, (0, reach)
+        d, err, inner = _epi_line(sv[c - h:c + h + 1, cg].transpose(0, 2, 1), pair,
+                                  sigma, window)
+        yield d.T, err.T, inner.T, (reach, 0)
+
+
 def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate, lines,
-                      progress=None, prior=None) -> dict:
+                      progress=None, prior=None, epi=False) -> dict:
     """Per shear, the best of the sub-grids and shifted windows; across shears, the
-    smallest aggregated cost."""
+    smallest aggregated cost.  ``epi``: the line sub-grids estimated on their EPIs
+    (:func:`_epi_estimates`; ``lines`` must be True)."""
+    estimates = _epi_estimates if epi else _subgrid_estimates
     n = v.shape[0]
     H, W = v.shape[-2:]
     R = window // 2
@@ -788,7 +892,7 @@ def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate, lines,
         # occluding edge, where the full grid mixes two surfaces.  A 1-D sub-grid along
         # an edge's direction sees no occlusion at all (thin structures)
         for j, (disp, err_s, interior, (ry, rx)) in enumerate(
-                _subgrid_estimates(sv, subgrid, sigma, window, filters, lines)):
+                estimates(sv, subgrid, sigma, window, filters, lines)):
             # refused only where the sub-grid's own views moved the repeated edge in: a
             # row of views near the left and right edges, a column near the top and
             # bottom (the whole grid's margin would refuse a border strip every
@@ -799,13 +903,16 @@ def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate, lines,
             # shifted windows: a pixel may take the estimate of a window that still
             # covers it (offset up to the window's radius), the one that fits best;
             # near an edge that is a window on the pixel's own side of it
-            for oy in range(-R, R + 1):
-                for ox in range(-R, R + 1):
-                    es = _shift_in(err, oy, ox, np.inf)
-                    better = es < Eg[g]
-                    Eg[g] = np.where(better, es, Eg[g])
-                    Dg[g] = np.where(better, _shift_in(d, oy, ox, np.nan), Dg[g])
-                    Jg[g] = np.where(better, j, Jg[g])
+            # (an EPI segment's window lies along its line: shifted along it alone)
+            offsets = ([(0, o) for o in range(-R, R + 1)] if rx and not ry else
+                       [(o, 0) for o in range(-R, R + 1)]) if epi else \
+                [(oy, ox) for oy in range(-R, R + 1) for ox in range(-R, R + 1)]
+            for oy, ox in offsets:
+                es = _shift_in(err, oy, ox, np.inf)
+                better = es < Eg[g]
+                Eg[g] = np.where(better, es, Eg[g])
+                Dg[g] = np.where(better, _shift_in(d, oy, ox, np.nan), Dg[g])
+                Jg[g] = np.where(better, j, Jg[g])
         if lines:
             first = (Eg[0] < Eg[1]) | ((Eg[0] == Eg[1]) & (Jg[0] < Jg[1]))
             E[k] = np.where(first, Eg[0], Eg[1])

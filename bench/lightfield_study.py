@@ -18,7 +18,9 @@ estimated on their epipolar-plane images (``select="epi"``: no filtering across 
 image rows, a window along the line; not the default: worse on the periodic grid).
 Scenes: two synthetic
 two-layer scenes of exact disparity (bands 10 px high with 12 px gaps, and thin stripes
-with 8 px gaps, 9 x 9 views, 192^2, foreground and background 2 px per view apart), a
+with 8 px gaps, 9 x 9 views, 192^2, foreground and background 2 px per view apart),
+crossing bars (the same layers, bars of 8 px with gaps of 4 along x in the left half and
+along y in the right), a
 smooth wall (43 % of the image, faintly shaded, at +1 px per view) and a textured plane
 slanted from -3 to +2.4 px per view through it (9 x 9 views, 256^2, 8 bit, noise of 4
 grey levels), a fine periodic grid (period 4 px, at -1.5 px per view, so that +2.5 fits it as
@@ -28,8 +30,8 @@ POV-Ray cube as a 5 x 5 light field (-0.6 .. 3.0 px per view; rendered once into
 ``--cache``), and any HCI scene given.  Scores: the HCI benchmark's MSE x 100 and
 BadPix(0.07) by its toolkit's rule (:func:`gridflow.metrics.hci_metrics`), the
 share of scored pixels without a value, and the seconds of each estimate; for the
-default, how well its confidence map ranks its errors, beside the former confidence
-(:func:`confidence_ranking`).
+default and for the EPI segments, how well the confidence map ranks the errors, beside
+the former confidence (:func:`confidence_ranking`).
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ from gridflow.metrics import hci_metrics
 from gridflow.estimator import estimate
 from gridflow.estimator.lightfield import estimate_refocused, estimate_shear_range
 
-__all__ = ["STEPS", "DEFAULT_STEP", "synthetic_scenes", "run_step", "confidence_ranking",
+__all__ = ["STEPS", "DEFAULT_STEP", "RANKED_STEPS", "synthetic_scenes", "run_step", "confidence_ranking",
            "study", "tables", "main"]
 
 # (label, how): None is the single pass; else estimate_refocused's keywords
@@ -63,15 +65,19 @@ STEPS = [
 ]
 # the step that is gridflow's default (its confidence map is ranked against the errors)
 DEFAULT_STEP = STEPS[4][0]
+# the steps whose confidence maps are ranked against the errors: the default and the EPI
+# segments, the short name each has in that table
+RANKED_STEPS = {DEFAULT_STEP: "default", STEPS[6][0]: "epi"}
 
 
 def synthetic_scenes() -> dict:
     """``{name: (views (9, 9, S, S), disparity (S, S))}``: the two-layer scenes (S = 192),
-    a smooth wall with a slanted textured plane through it (S = 256, 8-bit, sensor
+    bars of 8 px with 4-px gaps along x in the left half and along y in the right
+    (S = 192, the same layers), a smooth wall with a slanted textured plane through it (S = 256, 8-bit, sensor
     noise of 4 grey levels) and a periodic grid behind a box (S = 192, the same noise),
     where a shear four steps from the right one fits the grid as well."""
-    from gridflow.generators.lightfield import (layered_views, periodic_views,
-                                                smooth_wall_views)
+    from gridflow.generators.lightfield import (crossing_views, layered_views,
+                                                periodic_views, smooth_wall_views)
 
     bands = [(y, y + 10) for y in range(20, 170, 22)]
     stripes = [(y, y + 8) for y in range(20, 172, 16)]
@@ -79,6 +85,7 @@ def synthetic_scenes() -> dict:
                                         seed=3),
             "thin stripes": layered_views(n=9, size=192, d_fg=0.5, d_bg=-1.5,
                                           bands=stripes, seed=4),
+            "crossing bars": crossing_views(n=9, size=192, bar=8, gap=4),
             "smooth wall": smooth_wall_views(n=9, size=256, shading=0.02, noise=4 / 255),
             "periodic grid": periodic_views(n=9, size=192, noise=4 / 255)}
 
@@ -147,7 +154,8 @@ def study(scenes: dict, progress=print) -> tuple[list[dict], list[dict]]:
     -------
     rows : list of dict
         One per scene and step: ``scene, step, mse_x100, badpix_007, no_value_pct,
-        seconds``; the default step's also ``confidence`` (:func:`confidence_ranking`).
+        seconds``; the steps of :data:`RANKED_STEPS` also ``confidence``
+        (:func:`confidence_ranking`).
     ranges : list of dict
         One per scene: ``scene, true_lo, true_hi`` (px per view), the coarse pass's
         ``lo, hi``, its level ``k`` and the ``shears`` it gives.
@@ -170,7 +178,7 @@ def study(scenes: dict, progress=print) -> tuple[list[dict], list[dict]]:
                    "badpix_007": m["badpix_007"],
                    "no_value_pct": 100.0 * m["n_nonfinite"] / max(m["n_pixels"], 1),
                    "seconds": secs}
-            if label == DEFAULT_STEP:
+            if label in RANKED_STEPS:
                 row["confidence"] = confidence_ranking(maps, truth)
             rows.append(row)
     return rows, ranges
@@ -199,13 +207,14 @@ def tables(rows: list[dict], ranges: list[dict]) -> str:
     for r in rows:
         out.append(f"| {r['scene']} | {r['step']} | {r['mse_x100']:.3f} | "
                    f"{r['badpix_007']:.2f} | {r['no_value_pct']:.2f} | {r['seconds']:.1f} |")
-    out += ["", "| scene (the default) | pixels with an own estimate | mean abs. error, px | "
+    out += ["", "| scene | step | pixels with an own estimate | mean abs. error, px | "
             "most confident half: confidence | former (model error) | Spearman: "
-            "confidence | former |", "|---|---|---|---|---|---|---|"]
+            "confidence | former |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         c = r.get("confidence")
         if c:
-            out.append(f"| {r['scene']} | {c['n']} | {c['mae_all']:.3f} | "
+            out.append(f"| {r['scene']} | {RANKED_STEPS[r['step']]} | {c['n']} | "
+                       f"{c['mae_all']:.3f} | "
                        f"{c['mae_half']:.4f} | {c['mae_half_former']:.4f} | "
                        f"{c['rho']:+.2f} | {c['rho_former']:+.2f} |")
     return "\n".join(out)

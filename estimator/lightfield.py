@@ -63,7 +63,7 @@ import numpy as np
 from .driver import estimate
 from .portable import gaussian_taps, log10
 from .result import Estimate
-from .settings import DEFAULTS, InputError
+from .settings import DEFAULTS, EstimatorSettings, InputError
 
 __all__ = ["shear", "estimate_refocused", "REFOCUS_TUNING", "SELECT_DEFAULTS", "SELECTS",
            "stated_shears", "estimate_shear_range", "check_shears"]
@@ -556,12 +556,11 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         ``"lines"``, ``"epi"`` and ``"occlusion"``: radius (px) of the guided filter that
         aggregates the costs.
     smooth : bool
-        ``"lines"``, ``"epi"`` and ``"occlusion"``: where the data leave a region's shear
-        open
-        (smooth or texture-poor: the best shear's aggregated cost within a factor of two
-        of its median over the shears, or of the best of the shears two or more steps
-        from it), choose by the confirmed coarse disparity of the
-        decimated light field (the range's coarse pass at 1/32 ... 1/2 resolution: the
+        ``"lines"``, ``"epi"`` and ``"occlusion"``: where the data leave a region's
+        shear open (smooth or texture-poor: the best shear's aggregated cost within a
+        factor of two of its median over the shears, or of the best of the shears two or
+        more steps from it), choose by the confirmed coarse disparity of the decimated
+        light field (the range's coarse pass at 1/32 ... 1/2 resolution: the
         coarsest level whose data lie inside the region, a finer one only where it
         agrees within half a shear with a coarser one's estimate; each averaged over
         half its reach, each counting only where the level confirms at least half
@@ -593,8 +592,7 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         Model ``bcc``; maps, each shape (H, W): ``disparity``; ``shear``: the shear used;
         ``model_error``: the model error of the estimate kept; ``confidence`` (larger is
         better; threshold it to mask): with ``"lines"`` and ``"epi"`` ``-log10`` of the
-        product of
-        the disagreement (px per view) between the best estimates of the row's and of
+        product of the disagreement (px per view) between the best estimates of the row's and of
         the column's sub-grids at the chosen shear and the model error relative to its
         median of its positive values (floors: 1e-6 px, ``AGREE_FLOOR``, and nine
         decades below that median; where one of the two has no estimate, the
@@ -615,6 +613,10 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     v, shifts = _checked_views(views, shifts, select)
     n = v.shape[0]
     if select == "epi":
+        # the EPI fits do not go through the estimator: its checks of the settings here
+        EstimatorSettings(sigma=SELECT_DEFAULTS["epi"][0] if sigma is None else sigma,
+                          window=SELECT_DEFAULTS["epi"][1] if window is None else window,
+                          filters=filters)
         if t["subgrid"] is not None:
             raise InputError("subgrid: select='epi' takes segments of as many views as "
                              "its camera filters have taps (5, or 3 on a 3 x 3 grid)")
@@ -822,8 +824,13 @@ def _epi_line(seg: np.ndarray, pair, sigma: float, window: int):
     from scipy.ndimage import correlate1d
 
     p, dk = pair.prefilter, pair.derivative
-    cp = np.tensordot(p, seg, 1)
-    cd = np.tensordot(dk, seg, 1)
+    # the weighted sums over the views in a fixed order (a BLAS call, np.tensordot, sums
+    # in an order that depends on the CPU's kernels: tests/test_reproducible.py)
+    cp = p[0] * seg[0]
+    cd = dk[0] * seg[0]
+    for j in range(1, seg.shape[0]):
+        cp = cp + p[j] * seg[j]
+        cd = cd + dk[j] * seg[j]
     ix = correlate1d(cp, dk, axis=1, mode="nearest")
     i_s = correlate1d(cd, p, axis=1, mode="nearest")
     rw = int(window) // 2

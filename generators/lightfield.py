@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["plane_views", "layered_views", "smooth_wall_views", "periodic_views"]
+__all__ = ["plane_views", "layered_views", "crossing_views", "smooth_wall_views",
+           "periodic_views"]
 
 
 def _texture(rng, mean: float, amp: float, freq: float, terms: int = 6):
@@ -83,7 +84,7 @@ def plane_views(n: int = 5, size: int = 96, d0: float = 0.4, slope: float = 0.0,
 
 
 def layered_views(n: int = 9, size: int = 96, d_fg: float = 0.5, d_bg: float = -1.5,
-                  band=(40, 52), seed: int = 0, bands=None):
+                  band=(40, 52), seed: int = 0, bands=None, inside=None):
     """Two fronto-parallel layers, as on the HCI *backgammon* scene: bright textured bands
     in front of a darker, weaker textured background, with exact occlusion.
 
@@ -95,6 +96,9 @@ def layered_views(n: int = 9, size: int = 96, d_fg: float = 0.5, d_bg: float = -
         Disparity of the bands and of the background (px per camera step).
     band : (int, int)
         Rows ``[y0, y1)`` of the centre view the band covers; or several, ``bands``.
+    inside : callable, optional
+        ``inside(x, y)`` (arrays of the foreground's own coordinates, those of the
+        centre view) true where the foreground is: any shape instead of the bands.
     seed : int
         Texture seed.
 
@@ -105,7 +109,9 @@ def layered_views(n: int = 9, size: int = 96, d_fg: float = 0.5, d_bg: float = -
     """
     bands = [band] if bands is None else bands
 
-    def in_band(yy):
+    def in_band(yy, xx):
+        if inside is not None:
+            return inside(xx, yy)
         return np.logical_or.reduce([(yy >= b0) & (yy < b1) for b0, b1 in bands])
 
     rng = np.random.default_rng(seed)
@@ -116,10 +122,33 @@ def layered_views(n: int = 9, size: int = 96, d_fg: float = 0.5, d_bg: float = -
     for r in range(n):
         for c in range(n):
             dc, dr = c - cc, r - cc
-            yf = y + d_fg * dr
-            views[r, c] = np.where(in_band(yf), fg(x + d_fg * dc, yf),
+            yf, xf = y + d_fg * dr, x + d_fg * dc
+            views[r, c] = np.where(in_band(yf, xf), fg(xf, yf),
                                    bg(x + d_bg * dc, y + d_bg * dr))
-    return views, np.where(in_band(y), d_fg, d_bg)
+    return views, np.where(in_band(y, x), d_fg, d_bg)
+
+
+def crossing_views(n: int = 9, size: int = 192, bar: int = 8, gap: int = 4,
+                   d_fg: float = 0.5, d_bg: float = -1.5, seed: int = 5):
+    """Thin foreground bars in both directions (:func:`layered_views` with a shape):
+    bars of ``bar`` px with gaps of ``gap`` px, running along x in the image's left half
+    and along y in its right half (from 4 px right of the middle), rows 20 to
+    ``size - 20``; the same exact occlusion.
+
+    Returns
+    -------
+    views : ndarray, shape (n, n, size, size)
+    disparity : ndarray, shape (size, size)
+    """
+    period = bar + gap
+
+    def inside(x, y):
+        rows = (y >= 20) & (y < size - 20)
+        along_x = (x < size / 2) & ((y - 20) % period < bar)
+        along_y = (x >= size / 2 + 4) & ((x - 20) % period < bar)
+        return rows & (along_x | along_y)
+
+    return layered_views(n=n, size=size, d_fg=d_fg, d_bg=d_bg, seed=seed, inside=inside)
 
 
 def smooth_wall_views(n: int = 9, size: int = 256, d_range=(-3.0, 2.4), d_wall: float = 1.0,

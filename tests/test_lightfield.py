@@ -281,6 +281,10 @@ def test_epi_segments_see_between_stripes_too_thin_for_a_window():
             assert badpix(lines, T, G) > 10.0, gap
     with pytest.raises(ValueError, match="subgrid: select='epi'"):
         estimate_refocused(views, select="epi", subgrid=5)
+    # its settings are checked as the estimator's (it does not go through it)
+    for bad in (dict(sigma=0.0), dict(sigma=float("nan")), dict(window=4)):
+        with pytest.raises(ValueError, match="sigma must be|window must be"):
+            estimate_refocused(views, select="epi", **bad)
 
 
 def test_hci_metrics_and_epi_peer():

@@ -57,6 +57,7 @@ for motion in ("translation", "affine"):
     out[motion] = digest({f"{m}.{k}": v for m, e in res.items() for k, v in e.maps.items()})
 views, _ = layered_views(n=5, size=128)
 out["lightfield"] = digest(estimate_refocused(views).maps)
+out["lightfield epi"] = digest(estimate_refocused(views, select="epi").maps)
 out["volume"] = digest({"v": vol.volume, "lf": views})
 print(json.dumps(out))
 """

@@ -1,6 +1,6 @@
 """Gross outliers of the default light-field estimate on synthetic scenes, counted.
 
-    python -m gridflow.bench.lightfield_outliers           # about 7 minutes on 2 cores
+    python -m gridflow.bench.lightfield_outliers           # about 8-9 minutes on 2 cores
     python -m gridflow.bench.lightfield_outliers --quick   # without the 512^2 wall
 
 Issue 40 asks that on synthetic scenes with smooth regions and occlusions no pixel be off

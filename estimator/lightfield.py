@@ -7,7 +7,7 @@ about +-1 px per view.  Beyond that this field shears (refocuses) the light fiel
 disparity ``s`` to disparity 0, so the estimator sees the residual ``d - s`` only.
 :func:`estimate_refocused` does so for a set of integer shears (integer shifts move
 pixels exactly, with no interpolation) and chooses, per pixel, one shear's estimate
-(admissible: within half a pixel of its shear).  Three ways to choose:
+(admissible: within half a pixel of its shear).  Four ways to choose:
 
 ``select="coarse"``
     The shear nearest to a coarse disparity, from the same estimator on the light field
@@ -619,7 +619,8 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
                           filters=filters)
         if t["subgrid"] is not None:
             raise InputError("subgrid: select='epi' takes segments of as many views as "
-                             "its camera filters have taps (5, or 3 on a 3 x 3 grid)")
+                             "its camera filters have taps (matched5 and fs5: 5, matched3 "
+                             "or a 3 x 3 grid: 3)")
         t["subgrid"] = _epi_pair(filters, n).taps
     subgrid = min(5, n) if t["subgrid"] is None else t["subgrid"]
     if select != "coarse" and (subgrid % 2 == 0 or not 3 <= subgrid <= n):
@@ -844,7 +845,8 @@ def _epi_line(seg: np.ndarray, pair, sigma: float, window: int):
     lam = half - root
     with np.errstate(divide="ignore", invalid="ignore"):
         # the eigenvector of lam is (jxs, lam - jxx) ~ (d, -1); jxx - lam = root +
-        # (jxx - jss) / 2 >= 0, zero only where the window has no texture at all
+        # (jxx - jss) / 2 >= 0, zero where jxs = 0 and jxx <= jss (no x-texture that
+        # moves with the views): NaN there, which _admissible refuses
         d = jxs / (jxx - lam)
     H, W = seg.shape[-2:]
     m = pair.radius + rw

@@ -132,7 +132,7 @@ def crossing_views(n: int = 9, size: int = 192, bar: int = 8, gap: int = 4,
                    d_fg: float = 0.5, d_bg: float = -1.5, seed: int = 5):
     """Thin foreground bars in both directions (:func:`layered_views` with a shape):
     bars of ``bar`` px with gaps of ``gap`` px, running along x in the image's left half
-    and along y in its right half (from 4 px right of the middle), rows 20 to
+    and along y in its right half (the region from 4 px right of the middle), rows 20 to
     ``size - 20``; the same exact occlusion.
 
     Returns

@@ -199,7 +199,7 @@ def _square(rows: int, cols: int) -> bool:
 
 def _views_used(n: int, select: str) -> str:
     """Which of an n x n grid's views a refocusing choice reads (its default sub-grids)."""
-    if select == "lines":
+    if select in ("lines", "epi"):
         return f"the centre row and column, {2 * n - 1} views"
     if select == "occlusion":
         m = min(5, n)

@@ -130,6 +130,7 @@ def add_estimator_args(p: argparse.ArgumentParser) -> None:
     from gridflow.estimator.lightfield import SELECT_DEFAULTS
 
     lines, occl = SELECT_DEFAULTS["lines"], SELECT_DEFAULTS["coarse"]
+    epi = SELECT_DEFAULTS["epi"]
     g = p.add_argument_group("estimator settings")
     g.add_argument("--model", type=model_list, default=None,
                    help="brightness model: bcc, hf, full (default; bcc for a light field of "
@@ -146,11 +147,11 @@ def add_estimator_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--sigma", type=float, default=None,
                    help=f"Gaussian sigma of the window, px (default {DEFAULTS['sigma']:g}; "
                         f"a refocused light field: {lines[0]:g}, or {occl[0]:g} with "
-                        f"--select coarse)")
+                        f"--select coarse, {epi[0]:g} along the line with --select epi)")
     g.add_argument("--window", type=int, default=None,
                    help=f"the window's Gaussian taps, px (default {DEFAULTS['window']}; a "
                         f"refocused light field: {lines[1]}, or {occl[1]} with --select "
-                        f"coarse)")
+                        f"coarse, {epi[1]} along the line with --select epi)")
     g.add_argument("--filters", choices=FILTER_NAMES, default=None,
                    help=f"derivative filters (default {DEFAULTS['filters']})")
     g.add_argument("--temporal-radius", type=int, default=None,

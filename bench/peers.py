@@ -17,6 +17,8 @@ in pixels per camera step with the HCI sign.
   corners of a larger grid);
 * ``gridflow_lines``: as ``gridflow_occlusion`` with 1-D camera sub-grids along the
   centre row and column (``select="lines"``), on all views of that row and column;
+* ``gridflow_epi``: as ``gridflow_lines`` with each segment of views fitted on its
+  epipolar-plane images (``select="epi"``);
 * ``epi_st``: the EPI structure tensor of Wanner and Goldluecke (CVPR 2012; TPAMI 2014),
   written here: orientation of the horizontal and vertical epipolar-plane images from a
   Gaussian-smoothed 2-D structure tensor, the more coherent of the two kept per pixel.
@@ -164,11 +166,16 @@ def _gridflow_lines(views, grid: int | None = None, shifts=(-3, -2, -1, 0, 1, 2,
     return _gridflow_occlusion(views, grid, shifts, select="lines")
 
 
+def _gridflow_epi(views, grid: int | None = None, shifts=(-3, -2, -1, 0, 1, 2, 3)):
+    return _gridflow_occlusion(views, grid, shifts, select="epi")
+
+
 DEPTH_METHODS = {
     "gridflow": _gridflow,
     "gridflow_refocus": _gridflow_refocus,
     "gridflow_occlusion": _gridflow_occlusion,
     "gridflow_lines": _gridflow_lines,
+    "gridflow_epi": _gridflow_epi,
     "epi_st": lambda views: epi_structure_tensor(views),
 }
 
@@ -535,10 +542,11 @@ def score_hci_scene(folder, *, env=PEERS_ENV, progress=True,
         say(f"{folder}: {m} ...")
         r = run_depth(m, views, gt, **(kw if m.startswith("gridflow_") else {}))
         used = (f"{n}x{n}" if m in ("gridflow_occlusion", "epi_st") else
-                f"{n}+{n}" if m == "gridflow_lines" else f"{min(5, n)}x{min(5, n)}")
+                f"{n}+{n}" if m in ("gridflow_lines", "gridflow_epi")
+                else f"{min(5, n)}x{min(5, n)}")
         out.append({**r, "views": used})
     if n > 5:
-        for m in ("gridflow_occlusion", "gridflow_lines"):
+        for m in ("gridflow_occlusion", "gridflow_lines", "gridflow_epi"):
             r = run_depth(m, views, gt, grid=5, **kw)
             out.append({**r, "views": "5x5" if m == "gridflow_occlusion" else "5+5"})
     table = pd.DataFrame([{k: v for k, v in r.items()

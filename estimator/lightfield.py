@@ -72,7 +72,11 @@ __all__ = ["shear", "estimate_refocused", "REFOCUS_TUNING", "SELECT_DEFAULTS", "
 # work with small windows (their shifted windows and sub-grids handle the edges), the
 # coarse one keeps the estimator's usual light-field window
 SELECT_DEFAULTS = {"lines": (1.0, 5), "occlusion": (1.0, 5), "coarse": (2.0, 9),
-                   "epi": (1.5, 9)}
+                   "epi": (3.5, 21)}
+# (the EPI window lies along the line alone, so its length costs no thin structure
+# across it: of sigma 1.5 ... 6 px measured on bench/README.md's synthetic scenes, 3.5 px
+# left no smooth-wall pixel off by a pixel and the fewest of the periodic grid and the
+# faint bar; bench/README.md, *Light fields*)
 # the ways to choose a pixel's shear, the default first: the 1-D sub-grids handle
 # occlusions and thin structures, where most light-field scenes lose their depth
 SELECTS = ("lines", "occlusion", "coarse", "epi")
@@ -532,7 +536,7 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
         Estimator settings (:class:`estimator.EstimatorSettings`); defaults
         ``SELECT_DEFAULTS[select]``: 1 px and 5 taps for ``"lines"`` and
         ``"occlusion"``, 2 px and 9 taps for ``"coarse"``; for ``"epi"`` the window
-        along the line, 1.5 px and 9 taps (its data rows are not filtered across it).
+        along the line, 3.5 px and 21 taps (its data rows are not filtered across it).
     select : {"lines", "occlusion", "coarse", "epi"}
         How each pixel's estimate is chosen among the shears (module docstring):
         ``"lines"`` (1-D camera sub-grids along the centre row and column, shifted

@@ -152,8 +152,8 @@ def _add_estimate(sub) -> None:
                         "it worse than 'lines' on a periodic grid), or as 'lines' with "
                         "each segment of views fitted on its epipolar-plane images "
                         "('epi': structures a few px thin; bench/README.md measures it "
-                        "better than 'lines' on most of its scenes, worse on the "
-                        "periodic grid); docs/model.md")
+                        "better than 'lines' on each of its synthetic scenes, its "
+                        "confidence less telling); docs/model.md")
     p.add_argument("--median", type=int, default=None, metavar="SIZE",
                    help="refocusing: a median of the disparity over SIZE x SIZE px after "
                         "the choice (default 3; 0: none): a pixel that disagrees with most of its "

@@ -616,11 +616,11 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     t = {**REFOCUS_TUNING, **tuning}
     v, shifts = _checked_views(views, shifts, select)
     n = v.shape[0]
+    sigma = SELECT_DEFAULTS[select][0] if sigma is None else sigma
+    window = SELECT_DEFAULTS[select][1] if window is None else window
     if select == "epi":
         # the EPI fits do not go through the estimator: its checks of the settings here
-        EstimatorSettings(sigma=SELECT_DEFAULTS["epi"][0] if sigma is None else sigma,
-                          window=SELECT_DEFAULTS["epi"][1] if window is None else window,
-                          filters=filters)
+        EstimatorSettings(sigma=sigma, window=window, filters=filters)
         if t["subgrid"] is not None:
             raise InputError("subgrid: select='epi' takes segments of as many views as "
                              "its camera filters have taps (matched5 and fs5: 5, matched3 "
@@ -630,8 +630,6 @@ def estimate_refocused(views: np.ndarray, shifts=(-3, -2, -1, 0, 1, 2, 3), *,
     if select != "coarse" and (subgrid % 2 == 0 or not 3 <= subgrid <= n):
         raise InputError(f"subgrid must be odd, at least 3 and at most the grid's {n}, "
                          f"got {subgrid}")
-    sigma = SELECT_DEFAULTS[select][0] if sigma is None else sigma
-    window = SELECT_DEFAULTS[select][1] if window is None else window
     lo = np.array(sorted(shifts))
     if select == "coarse":
         out = _select_coarse(v, lo, sigma, window, filters, t["coarse_sigma"], progress)
@@ -916,10 +914,12 @@ def _select_occlusion(v, lo, sigma, window, filters, subgrid, aggregate, lines,
             # shifted windows: a pixel may take the estimate of a window that still
             # covers it (offset up to the window's radius), the one that fits best;
             # near an edge that is a window on the pixel's own side of it
-            # (an EPI segment's window lies along its line: shifted along it alone)
-            offsets = ([(0, o) for o in range(-R, R + 1)] if rx and not ry else
-                       [(o, 0) for o in range(-R, R + 1)]) if epi else \
-                [(oy, ox) for oy in range(-R, R + 1) for ox in range(-R, R + 1)]
+            if not epi:
+                offsets = [(oy, ox) for oy in range(-R, R + 1) for ox in range(-R, R + 1)]
+            elif ry == 0:       # an EPI row's window lies along x: shifted along it alone
+                offsets = [(0, o) for o in range(-R, R + 1)]
+            else:               # a column's along y
+                offsets = [(o, 0) for o in range(-R, R + 1)]
             for oy, ox in offsets:
                 es = _shift_in(err, oy, ox, np.inf)
                 better = es < Eg[g]
